@@ -1,0 +1,28 @@
+# `make run` and `make test` each set up .venv/ themselves (fresh clone friendly).
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+DATA := ../shared/data
+
+.PHONY: setup test run bench model clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+test: setup
+	$(PY) -m pytest -q
+
+run: setup
+	$(VENV)/bin/valvectl compare $(DATA)/bench_identification.csv --validate $(DATA)/bench_validation.csv --json compare.json --plot compare.png
+
+bench: setup
+	for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) .pytest_cache

@@ -1,0 +1,67 @@
+"""The ``valvectl`` command line (DESIGN.md, Command line).
+
+Each verb lives in ``controller/commands/<verb>.py`` with ``add_arguments(parser)``
+and ``run(args) -> int``; those modules import their heavy dependencies inside
+``run`` so that ``--help`` stays fast. Bad input anywhere raises
+:class:`models.recording.InputError`, printed here as one line, exit 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from models.recording import InputError
+
+#: verb -> (module, one-line help)
+VERBS = {
+    "fit": ("controller.commands.fit", "fit one hysteresis model to a recording"),
+    "compare": ("controller.commands.compare", "paper Table 1 on a recording, plus the inverse PI check"),
+    "simulate": ("controller.commands.simulate", "make a recording from the simulated valve"),
+    "run": ("controller.commands.run", "a closed-loop run"),
+    "valve-node": ("controller.commands.valve_node", "the simulated valve as a Zenoh node"),
+    "sweep": ("controller.commands.sweep", "a controller tuning sweep"),
+    "diagnose": ("controller.commands.diagnose", "find the physics a simulation leaves out"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit 2), as DESIGN.md asks of bad input."""
+
+    def error(self, message):
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="valvectl", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+    sub.required = True
+    for verb, (modname, help_) in VERBS.items():
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name != modname:
+                raise
+            continue  # verb not built yet
+        p = sub.add_parser(verb, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        sys.stderr.write(f"valvectl {args.verb}: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"valvectl {args.verb}: interrupted\n")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""Paper Table 1 on a recording (every model kind), plus the inverse PI check."""
+from __future__ import annotations
+
+import sys
+
+
+def add_arguments(p) -> None:
+    p.add_argument("recording", metavar="REC.csv", help="recording to fit on (in-sample figures)")
+    p.add_argument("--validate", default=None, metavar="REC2.csv", help="recording for validation only, never fitted")
+    p.add_argument("--json", required=True, metavar="OUT.json", help="figures, DESIGN.md layout")
+    p.add_argument("--plot", default=None, metavar="OUT.png", help="Fig. 3 per model and residuals by branch")
+
+
+def run(args) -> int:
+    from models.compare import compare_plot, compare_response
+    from models.model import write_json_atomic
+    from models.recording import read_recording
+
+    rec = read_recording(args.recording)
+    val = read_recording(args.validate) if args.validate else None
+
+    def progress(kind: str) -> None:
+        if sys.stderr.isatty():
+            sys.stderr.write(f"fitting {kind}...\n")
+
+    comparison = compare_response(rec, val, progress=progress)
+    write_json_atomic(args.json, comparison.to_json())
+    print(comparison.table())
+    if args.plot:
+        compare_plot(comparison, args.plot)
+        print(f"plot -> {args.plot}")
+    return 0

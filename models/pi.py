@@ -1,0 +1,166 @@
+"""The Prandtl-Ishlinskii (PI) model, Eq. (1)-(4) of the paper.
+
+``y(k) = sum_i w_i y_i(k) + c = w^T H_r[x(k), y_0] + c``       # Eq. (4), offset c added
+
+Thresholds follow Eq. (2), ``r_i = i/(n+1) max|x|`` for i = 1..n, with one
+more operator of threshold ``r_0 = 0`` (the identity) in front: the closed-
+form inverse of Eq. (7) starts from ``w_1' = 1/w_1`` for an operator of zero
+threshold, and without one the model's slope right after every reversal is
+zero, so it could not be inverted. The model works in normalized units
+(inputs in [-1, 1], so ``max|x| = 1``); :class:`models.model.FittedModel`
+carries the scaling to physical units.
+
+Weights come from linear least squares on the operator outputs. The
+*constrained* fit (the default) bounds every partial sum ``sum_{j<=i} w_j``
+(the slope of the loading curve on its i-th segment) below by a small
+positive number, which is exactly Kuhnen's condition for the inverse of
+Eq. (7) to exist; it is solved as a bounded problem in the partial sums
+(``scipy.optimize.lsq_linear``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from . import play
+
+#: Lower bound on the loading-curve slope in normalized units (output/input).
+MIN_SLOPE = 1e-3
+
+
+def thresholds(n: int, x_max: float = 1.0) -> np.ndarray:
+    """Eq. (2) thresholds ``i/(n+1) * x_max`` for i = 1..n, after a zero threshold."""
+    i = np.arange(1, n + 1, dtype=np.float64)
+    return np.concatenate([[0.0], i / (n + 1) * x_max])
+
+
+@dataclass(frozen=True, eq=False)
+class PIModel:
+    """A fitted PI model in normalized units.
+
+    Attributes
+    ----------
+    r : ndarray, shape (m,)
+        Thresholds, ascending, ``r[0] == 0`` for an invertible model.
+    w : ndarray, shape (m,)
+        Weights of Eq. (4).
+    offset : float
+        Output offset ``c``.
+    y0 : ndarray, shape (m,)
+        ``y_i0`` of Eq. (3), the operator memory before the first sample.
+    """
+
+    r: np.ndarray
+    w: np.ndarray
+    offset: float = 0.0
+    y0: np.ndarray = field(default=None)
+    kind: ClassVar[str] = "pi"
+
+    def __post_init__(self):
+        object.__setattr__(self, "r", np.asarray(self.r, dtype=np.float64))
+        object.__setattr__(self, "w", np.asarray(self.w, dtype=np.float64))
+        y0 = np.zeros_like(self.r) if self.y0 is None else np.asarray(self.y0, dtype=np.float64)
+        object.__setattr__(self, "y0", y0)
+        object.__setattr__(self, "offset", float(self.offset))
+
+    # -- stepping (deluca shape: init() gives the state, step is pure) --
+    def init(self, x0: float) -> np.ndarray:
+        """Operator states at the first sample, Eq. (3)."""
+        return play.init(self.r, x0, self.y0)
+
+    def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
+        """One sample: Eq. (1) then Eq. (4)."""
+        s = play.step(self.r, state, x)
+        return s, float(self.w @ s) + self.offset
+
+    def predict(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Output over an input sequence; returns ``(y, final_state)``.
+
+        Without ``state`` the operators start from Eq. (3) at ``x[0]``.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        if state is None:
+            state = self.init(x[0])
+        y, s = play.play_weighted(self.r, self.w, x, state)
+        return y + self.offset, s
+
+    # -- properties of the weights --
+    def loading_slopes(self) -> np.ndarray:
+        """Slope of the initial loading curve on each segment ``[r_i, r_{i+1})``: partial sums of w."""
+        return np.cumsum(self.w)
+
+    @property
+    def invertible(self) -> bool:
+        """Kuhnen's condition: zero first threshold and every partial sum of w positive."""
+        return bool(self.r[0] == 0.0 and np.all(self.loading_slopes() > 0))
+
+    def inverse(self):
+        """Closed-form inverse, Eq. (7) (see :func:`models.inverse_pi.invert_pi`)."""
+        from .inverse_pi import invert_pi
+
+        return invert_pi(self)
+
+    # -- model file --
+    def to_params(self) -> dict:
+        return {"r": self.r.tolist(), "w": self.w.tolist(), "offset": self.offset, "y0": self.y0.tolist()}
+
+    @classmethod
+    def from_params(cls, p: dict) -> "PIModel":
+        return cls(r=p["r"], w=p["w"], offset=p["offset"], y0=p.get("y0"))
+
+
+def regressors(r: np.ndarray, x: np.ndarray, y0: np.ndarray | None = None) -> np.ndarray:
+    """Operator outputs for the fit (N x m), operators started by Eq. (3) at ``x[0]``."""
+    y0 = np.zeros_like(r) if y0 is None else y0
+    Y, _ = play.play_response(r, x, play.init(r, x[0], y0))
+    return Y
+
+
+def fit_pi(
+    x: np.ndarray,
+    y: np.ndarray,
+    n: int = 50,
+    constrained: bool = True,
+    min_slope: float = MIN_SLOPE,
+) -> PIModel:
+    """Fit PI weights and offset by least squares (paper §2.3).
+
+    Parameters
+    ----------
+    x, y : ndarray
+        Input and output, normalized to [-1, 1].
+    n : int
+        Number of Eq. (2) thresholds (the zero threshold comes on top).
+    constrained : bool
+        Keep every loading-curve slope >= ``min_slope`` (invertible model).
+    min_slope : float
+        Lower bound for the slopes, normalized units.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    r = thresholds(n, x_max=float(np.max(np.abs(x))) if len(x) else 1.0)
+    Y = regressors(r, x)
+    m = len(r)
+    if not constrained:
+        A = np.column_stack([Y, np.ones(len(x))])
+        theta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        return PIModel(r=r, w=theta[:m], offset=theta[m])
+    # Unknowns: partial sums s_i = sum_{j<=i} w_j, so w = D s with D the first difference.
+    # Y @ w = Y @ D @ s; Y @ D has columns Y_i - Y_{i+1} (last column Y_m).
+    YD = Y.copy()
+    YD[:, :-1] -= Y[:, 1:]
+    A = np.column_stack([YD, np.ones(len(x))])
+    lb = np.concatenate([np.full(m, min_slope), [-np.inf]])
+    ub = np.full(m + 1, np.inf)
+    res = lsq_linear(A, y, bounds=(lb, ub), method="bvls", tol=1e-10, max_iter=2000)
+    s = res.x[:m]
+    w = np.diff(s, prepend=0.0)
+    return PIModel(r=r, w=w, offset=res.x[m])
+
+
+def fit_core(x: np.ndarray, y: np.ndarray, rate_hz: float, n: int | None = None) -> PIModel:
+    """Fitting entry point shared by every kind (see :mod:`models.fitting`)."""
+    return fit_pi(x, y, n=50 if n is None else n, constrained=True)
