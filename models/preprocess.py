@@ -10,6 +10,7 @@ file so that predictions come back in L/min and % duty.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy import signal
@@ -20,7 +21,7 @@ FIT_RATE_HZ = 10.0
 #: Lowpass corner as a fraction of the Nyquist frequency after downsampling.
 CUTOFF_FRACTION = 0.4
 CHEBY_ORDER = 8  # paper §2.3
-CHEBY_RIPPLE_DB = 0.5
+CHEBY_RIPPLE_DB = 0.05  # small: filtfilt doubles it, and loop amplitudes must not be distorted
 
 
 @dataclass(frozen=True)
@@ -65,13 +66,20 @@ def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
     nyq = rate_hz / 2.0
     if cutoff_hz >= nyq:
         return np.asarray(x, dtype=np.float64).copy()
-    sos = signal.cheby1(CHEBY_ORDER, CHEBY_RIPPLE_DB, cutoff_hz / nyq, btype="low", output="sos")
+    sos = _design(round(cutoff_hz / nyq, 12))
+    padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
+    sos = sos.copy()  # the cached design stays untouched by scipy
+    return signal.sosfiltfilt(sos, x, padlen=max(padlen, 0))
+
+
+@lru_cache(maxsize=32)
+def _design(wn: float) -> np.ndarray:
+    sos = signal.cheby1(CHEBY_ORDER, CHEBY_RIPPLE_DB, wn, btype="low", output="sos")
     # An even-order Chebyshev I sits at the bottom of its ripple at DC (gain 10^(-rp/20)),
     # squared by filtfilt: rescale to unit DC gain so levels are kept.
     dc = np.prod(sos[:, :3].sum(axis=1) / sos[:, 3:].sum(axis=1))
     sos[0, :3] /= dc
-    padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
-    return signal.sosfiltfilt(sos, x, padlen=max(padlen, 0))
+    return sos
 
 
 @dataclass(frozen=True)
@@ -110,7 +118,7 @@ def preprocess(
     """
     t_s = np.asarray(t_s, dtype=np.float64)
     rate = (len(t_s) - 1) / (t_s[-1] - t_s[0]) if len(t_s) > 1 else fit_rate_hz
-    factor = max(1, int(rate // fit_rate_hz))
+    factor = max(1, int(np.floor(rate / fit_rate_hz + 1e-6)))
     new_rate = rate / factor
     cutoff = CUTOFF_FRACTION * new_rate / 2.0
     if len(t_s) >= 30:
