@@ -1,0 +1,159 @@
+"""The controllers the CLI names, composed from the laws: ``pid``, ``ff``, ``ff+pid``, ``ff+kf``.
+
+=========  =====================================================  ==========================
+word       duty                                                   feedback
+=========  =====================================================  ==========================
+``pid``    ``PID(ref - meas)``                                    PID alone
+``ff``     ``invPI(ref)``                                         none
+``ff+pid`` ``invPI(ref) + PID(ref - meas)``                       PID around the feedforward
+``ff+kf``  ``invPI(ref - bias_hat)``                              Kalman bias estimate
+=========  =====================================================  ==========================
+
+Every duty passes the same rate limit and [min, max] clamp
+(:mod:`controller.laws.limits`). ``ff_pct`` in :class:`Command` is the
+feedforward of ``ref`` alone, ``fb_pct`` the rest of the applied duty, so
+``duty = ff + fb`` always.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from . import feedforward as ffw
+from . import kalman, limits, pid
+
+MODES = ("pid", "ff", "ff+pid", "ff+kf")
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerParams:
+    """One controller word over a batch of candidates.
+
+    Attributes
+    ----------
+    mode : str
+        One of :data:`MODES` (the same for the whole batch).
+    limits : Limits
+    inverse : PIBank or None
+        Feedforward (modes starting with ``ff``).
+    forward : PIBank or None
+        Forward model (modes starting with ``ff``): the inverse's memory starts
+        consistent with the valve's at the initial duty, and ``ff+kf`` takes
+        the filter's model flow ``m[k]`` from it.
+    pid : PIDParams or None
+        ``pid`` and ``ff+pid``.
+    kf : KFParams or None
+        ``ff+kf``.
+    """
+
+    mode: str
+    limits: limits.Limits
+    inverse: ffw.PIBank | None = None
+    forward: ffw.PIBank | None = None
+    pid: pid.PIDParams | None = None
+    kf: kalman.KFParams | None = None
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"unknown controller {self.mode!r} (one of {', '.join(MODES)})")
+        need = {"ff": ("inverse", "forward"), "pid": ("pid",), "ff+pid": ("inverse", "forward", "pid"), "ff+kf": ("inverse", "forward", "kf")}
+        for name in need[self.mode]:
+            if getattr(self, name) is None:
+                raise ValueError(f"controller {self.mode!r} needs {name}")
+
+    @property
+    def batch(self) -> int:
+        return self.limits.duty_min_pct.shape[0]
+
+
+class ControllerState(NamedTuple):
+    inverse: np.ndarray | None
+    forward: np.ndarray | None
+    pid: pid.PIDState | None
+    kf: kalman.KFState | None
+    duty_pct: np.ndarray  # last applied duty (the rate limit's memory)
+    inverse_ref: np.ndarray | None  # ff+kf: operator memory of invPI(ref) alone, for the record
+
+
+class Command(NamedTuple):
+    """Applied duty and its split, %, arrays of shape (B,)."""
+
+    duty_pct: np.ndarray
+    ff_pct: np.ndarray
+    fb_pct: np.ndarray
+
+
+def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:
+    """Cold start: integral and bias zero, derivative and filter at ``meas_lpm``, duty ``duty0_pct``."""
+    b = (p.batch,)
+    meas = np.broadcast_to(np.asarray(meas_lpm, dtype=np.float64), b)
+    duty = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), b).copy()
+    fwd = ffw.init(p.forward, duty) if p.forward is not None else None
+    # The valve's memory is that of the duty it had: the inverse starts consistent with it (Eq. 7).
+    inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd) if p.inverse is not None else None
+    pst = pid.init(p.pid, meas) if p.pid is not None else None
+    kst = kalman.init(p.kf, meas) if p.kf is not None else None
+    inv_ref = inv.copy() if p.mode == "ff+kf" else None
+    return ControllerState(inv, fwd, pst, kst, duty, inv_ref)
+
+
+def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, dt_s: float):
+    """One period for every candidate: ``(state, Command)``."""
+    inv, fwd, pst, kst, inv_ref = s.inverse, s.forward, s.pid, s.kf, s.inverse_ref
+    if p.mode == "pid":
+        pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, 0.0, s.duty_pct, p.limits)
+        ff = np.zeros_like(duty)
+    elif p.mode == "ff":
+        inv, ff = ffw.step(p.inverse, inv, ref_lpm)
+        duty = limits.apply(p.limits, ff, s.duty_pct, dt_s)
+    elif p.mode == "ff+pid":
+        inv, ff = ffw.step(p.inverse, inv, ref_lpm)
+        pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, ff, s.duty_pct, p.limits)
+    else:  # ff+kf
+        kst = kalman.update(p.kf, kst, meas_lpm)
+        # The inverse's memory follows the forward's (which saw the applied duty), so the
+        # model flow m[k] the filter compares with is exactly the flow the inverse aimed at.
+        inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd)
+        inv, u = ffw.step(p.inverse, inv, ref_lpm - kst.bias_lpm)
+        duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
+        fwd, model = ffw.step(p.forward, fwd, duty)
+        kst = kalman.push(kst, model)
+        # For the record, the feedforward of ref alone (its own operator memory), so that
+        # fb_pct is what the Kalman correction and the limits change.
+        inv_ref, ff = ffw.step(p.inverse, inv_ref, ref_lpm)
+    return ControllerState(inv, fwd, pst, kst, duty, inv_ref), Command(duty, ff, duty - ff)
+
+
+def resume(p: ControllerParams, s: ControllerState, meas_lpm, duty_applied_pct) -> ControllerState:
+    """Back to running after a gap in the measurements (bumpless).
+
+    The rate limit starts from the duty actually applied (the safe duty), the
+    derivative memory and the flow estimate restart at the fresh measurement,
+    the integral and the bias estimate are held from before the gap, and the
+    feedforward's operator memory continues with the reference.
+    """
+    return s._replace(
+        pid=pid.resume(s.pid, meas_lpm) if s.pid is not None else None,
+        kf=kalman.resume(s.kf, meas_lpm) if s.kf is not None else None,
+        duty_pct=np.broadcast_to(np.asarray(duty_applied_pct, dtype=np.float64), (p.batch,)).copy(),
+    )
+
+
+def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> ControllerState:
+    """Bumpless switch to the controller ``p`` while running with state ``s_old``.
+
+    The new law starts from the duty last applied: its rate limit continues
+    from it and a PID integral takes what the feedforward and the P and D
+    terms leave, so the first duty of the new law equals the last one of the
+    old (within the rate limit). ``ff+kf`` keeps the bias estimate if the old
+    law had one.
+    """
+    s = init(p, meas_lpm, s_old.duty_pct)
+    if s_old.kf is not None and s.kf is not None:
+        s = s._replace(kf=s.kf._replace(bias_lpm=s_old.kf.bias_lpm.copy()))
+    if s.pid is not None:
+        ff = ffw.step(p.inverse, s.inverse, ref_lpm)[1] if p.inverse is not None else 0.0
+        s = s._replace(pid=pid.transfer(p.pid, s.pid, ref_lpm, meas_lpm, ff, s_old.duty_pct))
+    return s

@@ -1,0 +1,142 @@
+"""Inverse-PI feedforward, reference flow -> duty, over a batch of candidates.
+
+A :class:`PIBank` is a Prandtl-Ishlinskii operator bank per candidate in
+physical units: the forward model (duty -> flow, Eq. 1 and 4) or its
+closed-form inverse (flow -> duty, Eq. 5-7), taken from a model file
+(:func:`models.model.load_model`). The feedforward is the inverse bank fed
+with the reference flow; the Kalman feedback also runs the forward bank on the
+applied duty to know what flow the model expects.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models import play
+from models.model import FittedModel
+
+
+@dataclass(frozen=True, eq=False)
+class PIBank:
+    """A PI operator bank per candidate, physical units in and out.
+
+    Attributes
+    ----------
+    r : ndarray, shape (B, n)
+        Thresholds in normalized input units (Eq. 2 forward, Eq. 7 inverse).
+    w : ndarray, shape (B, n)
+        Weights (Eq. 4 forward, Eq. 7 inverse).
+    offset : ndarray, shape (B,)
+        Output offset of the forward model, normalized output units. The
+        inverse subtracts it from its input first; the forward adds it.
+    in_center, in_half : ndarray, shape (B,)
+        Input scaling, ``u = (x - center) / half`` (duty % forward, L/min inverse).
+    out_center, out_half : ndarray, shape (B,)
+        Output scaling back to physical units.
+    x0 : ndarray, shape (B, n)
+        Operator memory before the first sample (``y_i0`` of Eq. 3, ``x_i'(0)`` of Eq. 7).
+    inverse : bool
+        True for the inverse bank (offset removed from the input).
+    """
+
+    r: np.ndarray
+    w: np.ndarray
+    offset: np.ndarray
+    in_center: np.ndarray
+    in_half: np.ndarray
+    out_center: np.ndarray
+    out_half: np.ndarray
+    x0: np.ndarray
+    inverse: bool
+
+    @property
+    def batch(self) -> int:
+        return self.r.shape[0]
+
+
+def _bank(core, in_scale, out_scale, x0, inverse: bool, batch: int) -> PIBank:
+    def rows(v):
+        return np.tile(np.asarray(v, dtype=np.float64), (batch, 1))
+
+    def col(v):
+        return np.full(batch, float(v))
+
+    return PIBank(
+        r=rows(core.r), w=rows(core.w), offset=col(core.offset),
+        in_center=col(in_scale.center), in_half=col(in_scale.half_range),
+        out_center=col(out_scale.center), out_half=col(out_scale.half_range),
+        x0=rows(x0), inverse=inverse,
+    )
+
+
+def inverse_bank(model: FittedModel, batch: int = 1) -> PIBank:
+    """The model's closed-form inverse PI (flow L/min -> duty %), repeated ``batch`` times."""
+    if model.inverse is None:
+        raise ValueError(f"model kind {model.kind!r} has no inverse; feedforward needs a PI model")
+    inv = model.inverse
+    return _bank(inv, model.y_scale, model.x_scale, inv.x0, True, batch)
+
+
+def forward_bank(model: FittedModel, batch: int = 1) -> PIBank:
+    """The model's forward PI (duty % -> flow L/min), repeated ``batch`` times."""
+    return _bank(model.core, model.x_scale, model.y_scale, model.core.y0, False, batch)
+
+
+def stack(banks: list[PIBank]) -> PIBank:
+    """One bank holding the candidates of several (same number of operators)."""
+    f = {k: np.concatenate([getattr(b, k) for b in banks]) for k in
+         ("r", "w", "offset", "in_center", "in_half", "out_center", "out_half", "x0")}
+    return PIBank(**f, inverse=banks[0].inverse)
+
+
+def _unit_input(bank: PIBank, x: np.ndarray) -> np.ndarray:
+    u = (np.asarray(x, dtype=np.float64) - bank.in_center) / bank.in_half
+    return u - bank.offset if bank.inverse else u
+
+
+def _physical_output(bank: PIBank, s: np.ndarray) -> np.ndarray:
+    y = np.einsum("bn,bn->b", bank.w, s)
+    if not bank.inverse:
+        y = y + bank.offset
+    return y * bank.out_half + bank.out_center
+
+
+def init(bank: PIBank, x0) -> np.ndarray:
+    """Operator states at the first input ``x0`` (shape (B,) or scalar), Eq. (3)."""
+    u = np.broadcast_to(_unit_input(bank, x0), (bank.batch,))
+    return play.init(bank.r, u[:, None], bank.x0)
+
+
+def step(bank: PIBank, state: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
+    """One sample for every candidate: Eq. (1)/(5) on the bank, then Eq. (4)/(6).
+
+    Parameters
+    ----------
+    x : ndarray, shape (B,)
+        Input in physical units (reference flow L/min for the inverse bank,
+        duty % for the forward bank).
+
+    Returns
+    -------
+    state : ndarray, shape (B, n)
+    y : ndarray, shape (B,)
+        Output in physical units (duty % from the inverse bank).
+    """
+    s = play.step(bank.r, state, _unit_input(bank, x)[:, None])
+    return s, _physical_output(bank, s)
+
+
+
+def inverse_state_from_forward(inv: PIBank, fwd: PIBank, fwd_state: np.ndarray) -> np.ndarray:
+    """Inverse operator memory consistent with the forward bank's memory, Eq. (7) last line.
+
+    ``x_i' = sum_{j<i} w_j y_i + sum_{j>=i} w_j y_j`` per candidate (axis 1),
+    with ``w`` the forward weights and ``y`` the forward operator outputs. With
+    it ``forward(inverse(y)) == y`` from the next sample on, whatever duty the
+    limits actually let through before.
+    """
+    w = fwd.w
+    head = np.cumsum(w, axis=1) - w  # sum_{j<i} w_j
+    tail = np.cumsum((w * fwd_state)[:, ::-1], axis=1)[:, ::-1]  # sum_{j>=i} w_j y_j
+    return head * fwd_state + tail

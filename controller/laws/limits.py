@@ -1,0 +1,39 @@
+"""The actuator limits every controller shares: duty clamp and duty rate limit."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Limits:
+    """Duty limits per candidate.
+
+    Attributes
+    ----------
+    duty_min_pct, duty_max_pct : ndarray, shape (B,)
+        Output clamp, % (the valve takes 0-100 %).
+    rate_pct_per_s : ndarray, shape (B,)
+        Largest duty change per second, %/s (``inf`` for none). Spares the
+        coil and the plunger the full-scale jumps a noisy derivative or a
+        reference step would ask for.
+    """
+
+    duty_min_pct: np.ndarray
+    duty_max_pct: np.ndarray
+    rate_pct_per_s: np.ndarray
+
+    @classmethod
+    def make(cls, batch: int = 1, duty_min_pct=0.0, duty_max_pct=100.0, rate_pct_per_s=np.inf) -> "Limits":
+        def col(v):
+            return np.broadcast_to(np.asarray(v, dtype=np.float64), (batch,)).copy()
+
+        return cls(col(duty_min_pct), col(duty_max_pct), col(rate_pct_per_s))
+
+
+def apply(lim: Limits, u_pct: np.ndarray, u_prev_pct: np.ndarray, dt_s: float) -> np.ndarray:
+    """Rate limit against the previous duty, then clamp to [min, max] (the clamp wins)."""
+    step = lim.rate_pct_per_s * dt_s
+    u = np.minimum(np.maximum(u_pct, u_prev_pct - step), u_prev_pct + step)
+    return np.minimum(np.maximum(u, lim.duty_min_pct), lim.duty_max_pct)
