@@ -37,6 +37,7 @@ CORES = {
     "pi": "models.pi:PIModel",
     "inverse-pi": "models.inverse_pi:InversePI",
     "pi-asym": "models.pi_asym:AsymmetricPIModel",
+    "inverse-pi-asym": "models.pi_asym:InverseAsymmetricPI",
     "preisach": "models.preisach:PreisachModel",
     "preisach-cont": "models.preisach_cont:ContinuousPreisachModel",
     "bouc-wen": "models.bouc_wen:BoucWenModel",
@@ -48,7 +49,7 @@ def core_class(kind: str):
     try:
         mod, cls = CORES[kind].split(":")
     except KeyError:
-        raise InputError(f"unknown model kind {kind!r} (one of {', '.join(k for k in CORES if k != 'inverse-pi')})") from None
+        raise InputError(f"unknown model kind {kind!r} (one of {', '.join(k for k in CORES if not k.startswith('inverse-'))})") from None
     return getattr(importlib.import_module(mod), cls)
 
 
