@@ -125,6 +125,7 @@ def fit_pi(
     n: int = 50,
     constrained: bool = True,
     min_slope: float = MIN_SLOPE,
+    rows: np.ndarray | None = None,
 ) -> PIModel:
     """Fit PI weights and offset by least squares (paper §2.3).
 
@@ -138,18 +139,23 @@ def fit_pi(
         Keep every loading-curve slope >= ``min_slope`` (invertible model).
     min_slope : float
         Lower bound for the slopes, normalized units.
+    rows : ndarray of bool, optional
+        Rows the least squares may use (all by default); the operators still
+        run over the whole input, so held-out rows keep the memory right.
     """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     r = thresholds(n, x_max=float(np.max(np.abs(x))) if len(x) else 1.0)
     Y = regressors(r, x)
+    if rows is not None:
+        Y, y = Y[rows], y[rows]
     m = len(r)
     # Unknowns: partial sums s_i = sum_{j<=i} w_j (the loading-curve slopes), so w = D s with
     # D the first difference; Y @ w = (Y @ D) @ s, whose columns Y_i - Y_{i+1} (last: Y_m) are
     # far better conditioned than Y's (about 1e3 against 4e3 on the bench recording).
     YD = Y.copy()
     YD[:, :-1] -= Y[:, 1:]
-    A = np.column_stack([YD, np.ones(len(x))])
+    A = np.column_stack([YD, np.ones(len(y))])
     lb = np.concatenate([np.full(m, min_slope), [-np.inf]]) if constrained else None
     theta = _least_squares(A, y, lb)
     return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m])
