@@ -1,0 +1,1 @@
+"""Controller tuning sweeps: candidates over controller settings, plant variants and reference, run as one batch."""
