@@ -27,44 +27,36 @@ def step(r: np.ndarray, state: np.ndarray, x: float) -> np.ndarray:
     return np.maximum(x - r, np.minimum(x + r, state))
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, inline="always")
+def _eq1(y_prev, x, r):
+    # Eq. (1): max{x - r, min{x + r, y(k-1)}}
+    lo = x - r
+    hi = x + r
+    return lo if y_prev < lo else (hi if y_prev > hi else y_prev)
+
+
+@njit(cache=True)
 def _response(r, x, state):
     n = r.shape[0]
     out = np.empty((x.shape[0], n))
     y = state.copy()
     for k in range(x.shape[0]):
-        xk = x[k]
         for i in range(n):
-            lo = xk - r[i]
-            hi = xk + r[i]
-            yi = y[i]
-            if yi < lo:
-                yi = lo
-            elif yi > hi:
-                yi = hi
-            y[i] = yi
-            out[k, i] = yi
+            y[i] = _eq1(y[i], x[k], r[i])
+            out[k, i] = y[i]
     return out, y
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True)
 def _weighted(r, w, x, state):
     n = r.shape[0]
     out = np.empty(x.shape[0])
     y = state.copy()
     for k in range(x.shape[0]):
-        xk = x[k]
         acc = 0.0
         for i in range(n):
-            lo = xk - r[i]
-            hi = xk + r[i]
-            yi = y[i]
-            if yi < lo:
-                yi = lo
-            elif yi > hi:
-                yi = hi
-            y[i] = yi
-            acc += w[i] * yi
+            y[i] = _eq1(y[i], x[k], r[i])
+            acc += w[i] * y[i]
         out[k] = acc
     return out, y
 
