@@ -1,0 +1,207 @@
+"""The discrete Preisach model (paper §2.1, §2.3): relay hysterons on the alpha >= beta grid.
+
+``y(k) = sum_{i>=j} mu_ij gamma_{alpha_i beta_j}[x](k) + c``,  ``mu_ij >= 0``
+
+A relay ``gamma_{alpha beta}`` is +1 once the input reaches its up-switching
+level ``alpha``, -1 once it falls below its down-switching level ``beta``, and
+holds its value in between. With ``N_h`` levels per axis the triangular grid
+``alpha_i >= beta_j`` holds ``N_h (N_h + 1) / 2`` relays (1275 for the paper's
+``N_h = 50``); the diagonal ``alpha = beta`` relays are memoryless steps. The
+levels are the centres of ``N_h`` equal cells over [-1, 1] (normalized input).
+
+Weights come from non-negative least squares (the paper's NNLS): the relay
+regressor matrix is sequential in time and its rows repeat while the input
+stays between two levels, so the fit keeps one row per run of unchanged relay
+states with its sample count as weight (an exact compression of the squared
+error), and one column per set of relays that switch together on the fitted
+record (their weight is shared equally: the data cannot tell them apart).
+Relays that never switch on the fitted record get no weight; the offset ``c``
+takes their constant part.
+
+The relays are updated in a numba-compiled loop; prediction accumulates the
+weighted sum without the N x 1275 matrix. At the first sample the relays sit
+in the state of an input relaxed at ``x0`` (the Preisach image of a PI
+without memory, Eq. 3 with ``y_i0 = x0``): every relay with ``alpha <= x0`` up,
+``beta > x0`` down, and in between up below the line ``alpha + beta = 2 x0``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+from scipy.optimize import nnls
+
+#: The paper's discretization: 50 levels, 1275 relays.
+N_H = 50
+
+
+def levels(n_h: int) -> np.ndarray:
+    """Switching levels: centres of ``n_h`` equal cells over [-1, 1]."""
+    return -1.0 + (2.0 * np.arange(n_h) + 1.0) / n_h
+
+
+def grid(n_h: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(alpha, beta)`` of the ``n_h (n_h + 1) / 2`` relays with ``alpha >= beta``."""
+    lv = levels(n_h)
+    i, j = np.tril_indices(n_h)  # i >= j
+    return lv[i].copy(), lv[j].copy()
+
+
+def relaxed_state(alpha: np.ndarray, beta: np.ndarray, x0: float) -> np.ndarray:
+    """Relay states (+1/-1, int8) of an input relaxed at ``x0``."""
+    up = (alpha <= x0) | ((beta <= x0) & (alpha + beta < 2.0 * x0))
+    return np.where(up, 1, -1).astype(np.int8)
+
+
+@njit(cache=True, inline="always")
+def _update(alpha, beta, g, xk):
+    changed = False
+    for i in range(alpha.shape[0]):
+        if xk >= alpha[i]:
+            if g[i] != 1:
+                g[i] = 1
+                changed = True
+        elif xk < beta[i]:
+            if g[i] != -1:
+                g[i] = -1
+                changed = True
+    return changed
+
+
+@njit(cache=True)
+def _weighted(alpha, beta, mu, x, state):
+    g = state.copy()
+    out = np.empty(x.shape[0])
+    acc = 0.0
+    for i in range(g.shape[0]):
+        acc += mu[i] * g[i]
+    for k in range(x.shape[0]):
+        if _update(alpha, beta, g, x[k]):
+            acc = 0.0
+            for i in range(g.shape[0]):
+                acc += mu[i] * g[i]
+        out[k] = acc
+    return out, g
+
+
+@njit(cache=True)
+def _runs(alpha, beta, x, state):
+    """Relay states of each run of samples with unchanged states, and each sample's run."""
+    g = state.copy()
+    rows = np.empty((x.shape[0], g.shape[0]), dtype=np.int8)
+    run = np.empty(x.shape[0], dtype=np.int64)
+    n = -1
+    for k in range(x.shape[0]):
+        if _update(alpha, beta, g, x[k]) or n < 0:
+            n += 1
+            rows[n] = g
+        run[k] = n
+    return rows[: n + 1].copy(), run, g
+
+
+def relay_response(alpha: np.ndarray, beta: np.ndarray, x: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Every relay's output (N x m, int8) over an input: the plain regressor matrix."""
+    rows, run, _ = _runs(alpha, beta, np.ascontiguousarray(x, dtype=np.float64), state)
+    return rows[run]
+
+
+def relay_response_numpy(alpha: np.ndarray, beta: np.ndarray, x: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Reference implementation: a per-sample numpy update of every relay."""
+    g = np.asarray(state, dtype=np.int8).copy()
+    out = np.empty((len(x), len(g)), dtype=np.int8)
+    for k, xk in enumerate(np.asarray(x, dtype=np.float64)):
+        g[xk >= alpha] = 1
+        g[xk < beta] = -1  # beta <= alpha: never both
+        out[k] = g
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class PreisachModel:
+    """A discrete Preisach model in normalized units.
+
+    Attributes
+    ----------
+    alpha, beta : ndarray, shape (m,)
+        Up- and down-switching levels, ``alpha >= beta``.
+    mu : ndarray, shape (m,)
+        Non-negative relay weights.
+    offset : float
+        Output offset ``c``.
+    """
+
+    alpha: np.ndarray
+    beta: np.ndarray
+    mu: np.ndarray
+    offset: float = 0.0
+    kind: ClassVar[str] = "preisach"
+
+    def __post_init__(self):
+        for name in ("alpha", "beta", "mu"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        object.__setattr__(self, "offset", float(self.offset))
+
+    def init(self, x0: float) -> np.ndarray:
+        """Relay states at the first sample: relaxed at ``x0``."""
+        return relaxed_state(self.alpha, self.beta, float(x0))
+
+    def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
+        """One sample: switch the relays, then the weighted sum."""
+        g = state.copy()
+        _update(self.alpha, self.beta, g, float(x))
+        return g, float(self.mu @ g) + self.offset
+
+    def predict(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Output over an input sequence; ``(y, final_state)``."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if state is None:
+            state = self.init(x[0])
+        y, g = _weighted(self.alpha, self.beta, self.mu, x, np.asarray(state, dtype=np.int8))
+        return y + self.offset, g
+
+    def to_params(self) -> dict:
+        return {"alpha": self.alpha.tolist(), "beta": self.beta.tolist(), "mu": self.mu.tolist(),
+                "offset": self.offset}
+
+    @classmethod
+    def from_params(cls, d: dict) -> "PreisachModel":
+        return cls(alpha=d["alpha"], beta=d["beta"], mu=d["mu"], offset=d["offset"])
+
+
+def fit_preisach(x: np.ndarray, y: np.ndarray, n_h: int = N_H) -> PreisachModel:
+    """Relay weights by non-negative least squares, offset free.
+
+    Parameters
+    ----------
+    x, y : ndarray
+        Input and output, normalized to [-1, 1].
+    n_h : int
+        Levels per axis; ``n_h (n_h + 1) / 2`` relays.
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    alpha, beta = grid(n_h)
+    rows, run, _ = _runs(alpha, beta, x, relaxed_state(alpha, beta, x[0]))
+    count = np.bincount(run, minlength=len(rows)).astype(np.float64)
+    mean_y = np.bincount(run, weights=y, minlength=len(rows)) / count
+    # Relays that switch together on this record are one column; constant ones none.
+    cols, inverse = np.unique(rows, axis=1, return_inverse=True)
+    inverse = inverse.ravel()
+    varies = np.ptp(cols, axis=0) > 0
+    A = cols[:, varies].astype(np.float64)
+    # Runs weighted by their length: sum_k (a_k mu + c - y_k)^2 = sum_runs n (a mu + c - mean y)^2 + const.
+    sw = np.sqrt(count)
+    design = np.column_stack([A, np.ones(len(rows)), -np.ones(len(rows))]) * sw[:, None]
+    sol, _ = nnls(design, mean_y * sw, maxiter=50 * design.shape[1])
+    per_col = np.zeros(cols.shape[1])
+    per_col[varies] = sol[: A.shape[1]]
+    members = np.bincount(inverse, minlength=cols.shape[1])
+    mu = per_col[inverse] / members[inverse]
+    return PreisachModel(alpha=alpha, beta=beta, mu=mu, offset=sol[-2] - sol[-1])
+
+
+def fit_core(x: np.ndarray, y: np.ndarray, rate_hz: float, n: int | None = None) -> PreisachModel:
+    """Fitting entry point shared by every kind (see :mod:`models.fitting`); ``n`` is ``N_h``."""
+    return fit_preisach(x, y, n_h=N_H if n is None else n)

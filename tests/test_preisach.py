@@ -1,0 +1,128 @@
+"""The discrete Preisach model: relay responses, wiping-out, congruency, NNLS recovery."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from models.fitting import fit_model
+from models.model import load_model, save_model
+from models.preisach import (PreisachModel, fit_preisach, grid, levels, relaxed_state, relay_response,
+                             relay_response_numpy)
+from tests.conftest import growing_sine
+
+
+def known(n_h=10, seed=0) -> PreisachModel:
+    rng = np.random.default_rng(seed)
+    alpha, beta = grid(n_h)
+    # A Preisach density heavier near the diagonal, as for a valve with narrow loops.
+    mu = rng.uniform(0.0, 1.0, len(alpha)) * np.exp(-3.0 * (alpha - beta)) / len(alpha)
+    return PreisachModel(alpha=alpha, beta=beta, mu=mu, offset=0.1)
+
+
+def test_grid_is_the_papers_triangle():
+    alpha, beta = grid(50)
+    assert len(alpha) == 1275 and np.all(alpha >= beta)
+    np.testing.assert_allclose(levels(4), [-0.75, -0.25, 0.25, 0.75])
+
+
+def test_single_relay_switches_at_alpha_and_beta_and_holds_between():
+    relay = PreisachModel(alpha=[0.5], beta=[-0.2], mu=[1.0])
+    x = np.array([0.0, 0.4, 0.5, 0.1, -0.2, -0.21, 0.3, 0.49, 0.6, -1.0])
+    y, _ = relay.predict(x, np.array([-1], dtype=np.int8))
+    np.testing.assert_array_equal(y, [-1, -1, 1, 1, 1, -1, -1, -1, 1, -1])
+
+
+def test_relaxed_state_is_split_by_the_line_alpha_plus_beta_equals_2x0():
+    alpha, beta = grid(20)
+    for x0 in (-0.3, 0.0, 0.55):
+        g = relaxed_state(alpha, beta, x0)
+        assert np.all(g[alpha <= x0] == 1) and np.all(g[beta > x0] == -1)
+        between = (beta <= x0) & (alpha > x0)
+        np.testing.assert_array_equal(g[between] == 1, (alpha + beta)[between] < 2 * x0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=arrays(np.float64, st.integers(1, 200), elements=st.floats(-1.2, 1.2)), n_h=st.integers(1, 12))
+def test_compiled_relays_equal_the_plain_loop(x, n_h):
+    alpha, beta = grid(n_h)
+    s0 = relaxed_state(alpha, beta, x[0])
+    np.testing.assert_array_equal(relay_response(alpha, beta, x, s0), relay_response_numpy(alpha, beta, x, s0))
+    m = PreisachModel(alpha, beta, np.linspace(0.1, 1, len(alpha)), 0.2)
+    y, _ = m.predict(x, s0)
+    np.testing.assert_allclose(y, relay_response_numpy(alpha, beta, x, s0) @ m.mu + 0.2, atol=1e-12)
+
+
+def test_wiping_out_a_new_extremum_erases_the_history_it_dominates():
+    m = known()
+    tail = np.concatenate([np.linspace(0.2, 0.9, 30), np.linspace(0.9, -0.6, 50), np.linspace(-0.6, 0.3, 30)])
+    # Two histories with different extrema, all inside [-0.6, 0.9] reached by the tail.
+    ha = np.concatenate([np.linspace(0.0, 0.7, 20), np.linspace(0.7, -0.5, 30), np.linspace(-0.5, 0.2, 20)])
+    hb = np.concatenate([np.linspace(0.0, -0.4, 20), np.linspace(-0.4, 0.5, 30), np.linspace(0.5, 0.2, 20)])
+    ya, sa = m.predict(np.concatenate([ha, tail]))
+    yb, sb = m.predict(np.concatenate([hb, tail]))
+    assert not np.allclose(ya[len(ha):len(ha) + 10], yb[len(hb):len(hb) + 10])  # the histories show at first
+    # From the dominating maximum on, every relay with alpha <= 0.9 is up, the rest untouched: same outputs.
+    np.testing.assert_allclose(ya[len(ha) + 29:], yb[len(hb) + 29:], atol=1e-12)
+    np.testing.assert_array_equal(sa, sb)
+
+
+def test_minor_loops_between_the_same_extrema_are_congruent():
+    m = known()
+    loop = np.concatenate([np.linspace(0.05, 0.45, 40), np.linspace(0.45, 0.05, 40)[1:]])
+    hist_a = np.concatenate([np.linspace(0, 1.0, 60), np.linspace(1.0, 0.05, 60)])
+    hist_b = np.concatenate([np.linspace(0, -0.8, 60), np.linspace(-0.8, 0.7, 60), np.linspace(0.7, 0.05, 60)])
+    ya, _ = m.predict(np.concatenate([hist_a, loop[1:], loop[1:]]))
+    yb, _ = m.predict(np.concatenate([hist_b, loop[1:], loop[1:]]))
+    la, lb = ya[-len(loop):], yb[-len(loop):]
+    np.testing.assert_allclose(la - la[0], lb - lb[0], atol=1e-12)
+    assert np.ptp(la) > 0 and abs(la[0] - lb[0]) > 1e-6  # real loops, at different heights
+
+
+def rich_input(n=6000, seed=1):
+    """Sweeps of every amplitude around moving centres plus a random walk: separates the relays."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(n)
+    x = np.sin(2 * np.pi * 40 * k / n) * (0.1 + 0.9 * k / n) + 0.3 * np.sin(2 * np.pi * 3 * k / n)
+    walk = np.clip(np.cumsum(rng.normal(0, 0.08, n)), -1, 1)
+    return np.clip(np.concatenate([x, walk]), -1, 1)
+
+
+def test_fit_recovers_a_known_model_from_its_own_output():
+    truth = known()
+    x = rich_input()
+    y, _ = truth.predict(x)
+    fit = fit_preisach(x, y, n_h=10)
+    assert np.all(fit.mu >= 0)
+    other = 0.95 * np.sin(np.linspace(0, 11 * np.pi, 2000)) * np.linspace(1, 0.2, 2000)
+    yt, _ = truth.predict(other)
+    yf, _ = fit.predict(other)
+    np.testing.assert_allclose(yf, yt, atol=1e-6 * np.ptp(yt))
+
+
+def test_chunked_prediction_and_step_equal_whole():
+    m = known()
+    x = rich_input(300)
+    whole, _ = m.predict(x)
+    a, s = m.predict(x[:100])
+    b, _ = m.predict(x[100:], s)
+    np.testing.assert_allclose(np.concatenate([a, b]), whole, atol=1e-14)
+    s = m.init(x[0])
+    for k in range(30):
+        s, yk = m.step(s, x[k])
+        assert yk == pytest.approx(whole[k], abs=1e-12)
+
+
+def test_params_and_model_file_round_trip_exactly(tmp_path):
+    duty = growing_sine()
+    t = np.arange(len(duty)) * 0.05
+    flow = 100 + 80 * known().predict((duty - 55) / 17)[0]
+    model = fit_model("preisach", t, duty, flow)
+    back = PreisachModel.from_params(json.loads(json.dumps(model.core.to_params())))
+    np.testing.assert_array_equal(back.mu, model.core.mu)
+    save_model(model, tmp_path / "m.json")
+    np.testing.assert_array_equal(load_model(tmp_path / "m.json").predict(duty)[0], model.predict(duty)[0])
