@@ -4,10 +4,17 @@
 word       duty                                                   feedback
 =========  =====================================================  ==========================
 ``pid``    ``PID(ref - meas)``                                    PID alone
-``ff``     ``invPI(ref)``                                         none
-``ff+pid`` ``invPI(ref) + PID(ref - meas)``                       PID around the feedforward
-``ff+kf``  ``invPI(ref - bias_hat)``                              Kalman bias estimate
+``ff``     ``invPI(F r)``                                         none
+``ff+pid`` ``invPI(F r) + PID(ref - meas)``                       PID around the feedforward
+``ff+kf``  ``invPI(F r - bias_hat)``                              Kalman bias estimate
 =========  =====================================================  ==========================
+
+``r`` is the feedforward's reference: ``ref`` itself, or the reference
+``preview_s`` ahead when the reference is a known profile (the loop passes
+it as ``ref_ff_lpm``), which lets the feedforward act the valve's transport
+delay early. ``F`` is the lag inversion of
+:class:`controller.laws.feedforward.LeadParams` (identity when absent).
+The feedback always compares the measured flow with ``ref`` now.
 
 Every duty passes the same rate limit and [min, max] clamp
 (:mod:`controller.laws.limits`). ``ff_pct`` in :class:`Command` is the
@@ -46,6 +53,8 @@ class ControllerParams:
         ``pid`` and ``ff+pid``.
     kf : KFParams or None
         ``ff+kf``.
+    lead : LeadParams or None
+        Lag inversion on the feedforward's reference (modes starting with ``ff``).
     """
 
     mode: str
@@ -54,6 +63,7 @@ class ControllerParams:
     forward: ffw.PIBank | None = None
     pid: pid.PIDParams | None = None
     kf: kalman.KFParams | None = None
+    lead: ffw.LeadParams | None = None
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -69,12 +79,11 @@ class ControllerParams:
 
 
 class ControllerState(NamedTuple):
-    inverse: np.ndarray | None
-    forward: np.ndarray | None
+    forward: np.ndarray | None  # forward operator memory: the valve's, as driven by the applied duty
     pid: pid.PIDState | None
     kf: kalman.KFState | None
     duty_pct: np.ndarray  # last applied duty (the rate limit's memory)
-    inverse_ref: np.ndarray | None  # ff+kf: operator memory of invPI(ref) alone, for the record
+    lead: ffw.LeadState | None
 
 
 class Command(NamedTuple):
@@ -86,58 +95,65 @@ class Command(NamedTuple):
 
 
 def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:
-    """Cold start: integral and bias zero, derivative and filter at ``meas_lpm``, duty ``duty0_pct``."""
+    """Cold start: integral and bias zero, derivative and filter at ``meas_lpm``, valve at ``duty0_pct``."""
     b = (p.batch,)
     meas = np.broadcast_to(np.asarray(meas_lpm, dtype=np.float64), b)
     duty = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), b).copy()
     fwd = ffw.init(p.forward, duty) if p.forward is not None else None
-    # The valve's memory is that of the duty it had: the inverse starts consistent with it (Eq. 7).
-    inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd) if p.inverse is not None else None
     pst = pid.init(p.pid, meas) if p.pid is not None else None
     kst = kalman.init(p.kf, meas) if p.kf is not None else None
-    inv_ref = inv.copy() if p.mode == "ff+kf" else None
-    return ControllerState(inv, fwd, pst, kst, duty, inv_ref)
+    # The lead starts at rest at zero flow: the first reference is a step for it.
+    lst = ffw.lead_init(p.lead, 0.0) if (p.lead is not None and p.inverse is not None) else None
+    return ControllerState(fwd, pst, kst, duty, lst)
 
 
-def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, dt_s: float):
-    """One period for every candidate: ``(state, Command)``."""
-    inv, fwd, pst, kst, inv_ref = s.inverse, s.forward, s.pid, s.kf, s.inverse_ref
+def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, dt_s: float,
+         ref_ff_lpm: np.ndarray | None = None):
+    """One period for every candidate: ``(state, Command)``.
+
+    ``ref_ff_lpm`` is the feedforward's reference (``ref_lpm`` when None).
+    """
+    fwd, pst, kst, lst = s.forward, s.pid, s.kf, s.lead
     if p.mode == "pid":
         pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, 0.0, s.duty_pct, p.limits)
-        ff = np.zeros_like(duty)
-    elif p.mode == "ff":
-        inv, ff = ffw.step(p.inverse, inv, ref_lpm)
+        return s._replace(pid=pst, duty_pct=duty), Command(duty, np.zeros_like(duty), duty)
+
+    r = ref_lpm if ref_ff_lpm is None else ref_ff_lpm
+    if lst is not None:
+        lst, r = ffw.lead_step(p.lead, lst, r, dt_s)
+    # The inverse's operator memory is taken from the forward's, which saw the duty actually
+    # applied (Eq. 7), so a duty the limits cut short leaves no mismatch behind and the
+    # forward model's flow m[k] is exactly the flow the inverse aimed at.
+    inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd)
+    ff = ffw.step(p.inverse, inv, r)[1]
+    if p.mode == "ff":
         duty = limits.apply(p.limits, ff, s.duty_pct, dt_s)
     elif p.mode == "ff+pid":
-        inv, ff = ffw.step(p.inverse, inv, ref_lpm)
         pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, ff, s.duty_pct, p.limits)
     else:  # ff+kf
         kst = kalman.update(p.kf, kst, meas_lpm)
-        # The inverse's memory follows the forward's (which saw the applied duty), so the
-        # model flow m[k] the filter compares with is exactly the flow the inverse aimed at.
-        inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd)
-        inv, u = ffw.step(p.inverse, inv, ref_lpm - kst.bias_lpm)
+        u = ffw.step(p.inverse, inv, r - kst.bias_lpm)[1]
         duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
-        fwd, model = ffw.step(p.forward, fwd, duty)
+    fwd, model = ffw.step(p.forward, fwd, duty)
+    if kst is not None:
         kst = kalman.push(kst, model)
-        # For the record, the feedforward of ref alone (its own operator memory), so that
-        # fb_pct is what the Kalman correction and the limits change.
-        inv_ref, ff = ffw.step(p.inverse, inv_ref, ref_lpm)
-    return ControllerState(inv, fwd, pst, kst, duty, inv_ref), Command(duty, ff, duty - ff)
+    return ControllerState(fwd, pst, kst, duty, lst), Command(duty, ff, duty - ff)
 
 
 def resume(p: ControllerParams, s: ControllerState, meas_lpm, duty_applied_pct) -> ControllerState:
     """Back to running after a gap in the measurements (bumpless).
 
-    The rate limit starts from the duty actually applied (the safe duty), the
-    derivative memory and the flow estimate restart at the fresh measurement,
-    the integral and the bias estimate are held from before the gap, and the
-    feedforward's operator memory continues with the reference.
+    The rate limit starts from the duty actually applied (the safe duty) and
+    the forward memory has seen it; the derivative memory and the flow
+    estimate restart at the fresh measurement; the integral and the bias
+    estimate are held from before the gap.
     """
+    duty = np.broadcast_to(np.asarray(duty_applied_pct, dtype=np.float64), (p.batch,)).copy()
     return s._replace(
+        forward=ffw.step(p.forward, s.forward, duty)[0] if s.forward is not None else None,
         pid=pid.resume(s.pid, meas_lpm) if s.pid is not None else None,
         kf=kalman.resume(s.kf, meas_lpm) if s.kf is not None else None,
-        duty_pct=np.broadcast_to(np.asarray(duty_applied_pct, dtype=np.float64), (p.batch,)).copy(),
+        duty_pct=duty,
     )
 
 
@@ -151,9 +167,12 @@ def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> 
     law had one.
     """
     s = init(p, meas_lpm, s_old.duty_pct)
+    if s.lead is not None:
+        s = s._replace(lead=ffw.lead_init(p.lead, ref_lpm))
     if s_old.kf is not None and s.kf is not None:
         s = s._replace(kf=s.kf._replace(bias_lpm=s_old.kf.bias_lpm.copy()))
     if s.pid is not None:
-        ff = ffw.step(p.inverse, s.inverse, ref_lpm)[1] if p.inverse is not None else 0.0
+        ff = (ffw.step(p.inverse, ffw.inverse_state_from_forward(p.inverse, p.forward, s.forward), ref_lpm)[1]
+              if p.inverse is not None else 0.0)
         s = s._replace(pid=pid.transfer(p.pid, s.pid, ref_lpm, meas_lpm, ff, s_old.duty_pct))
     return s

@@ -3,13 +3,20 @@
 A :class:`PIBank` is a Prandtl-Ishlinskii operator bank per candidate in
 physical units: the forward model (duty -> flow, Eq. 1 and 4) or its
 closed-form inverse (flow -> duty, Eq. 5-7), taken from a model file
-(:func:`models.model.load_model`). The feedforward is the inverse bank fed
+(:func:`models.model.load_model`).
+
+The model is only known on its identified ranges (the scalings' [-1, 1]).
+The operators see the input clipped to that range, as the simulated valve's
+do; below it the valve is taken as linear with the range's average gain
+(flow half-range over duty half-range) down to closed, and above it as
+saturated (the inverse never asks for more than the top of the range). The feedforward is the inverse bank fed
 with the reference flow; the Kalman feedback also runs the forward bank on the
 applied duty to know what flow the model expects.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,6 +45,9 @@ class PIBank:
         Operator memory before the first sample (``y_i0`` of Eq. 3, ``x_i'(0)`` of Eq. 7).
     inverse : bool
         True for the inverse bank (offset removed from the input).
+    lo_gain : ndarray, shape (B,)
+        Below the identified input range, output change per input change
+        (the range's average gain; its reciprocal for the inverse).
     """
 
     r: np.ndarray
@@ -49,6 +59,7 @@ class PIBank:
     out_half: np.ndarray
     x0: np.ndarray
     inverse: bool
+    lo_gain: np.ndarray
 
     @property
     def batch(self) -> int:
@@ -66,7 +77,7 @@ def _bank(core, in_scale, out_scale, x0, inverse: bool, batch: int) -> PIBank:
         r=rows(core.r), w=rows(core.w), offset=col(core.offset),
         in_center=col(in_scale.center), in_half=col(in_scale.half_range),
         out_center=col(out_scale.center), out_half=col(out_scale.half_range),
-        x0=rows(x0), inverse=inverse,
+        x0=rows(x0), inverse=inverse, lo_gain=col(out_scale.half_range / in_scale.half_range),
     )
 
 
@@ -86,20 +97,21 @@ def forward_bank(model: FittedModel, batch: int = 1) -> PIBank:
 def stack(banks: list[PIBank]) -> PIBank:
     """One bank holding the candidates of several (same number of operators)."""
     f = {k: np.concatenate([getattr(b, k) for b in banks]) for k in
-         ("r", "w", "offset", "in_center", "in_half", "out_center", "out_half", "x0")}
+         ("r", "w", "offset", "in_center", "in_half", "out_center", "out_half", "x0", "lo_gain")}
     return PIBank(**f, inverse=banks[0].inverse)
 
 
 def _unit_input(bank: PIBank, x: np.ndarray) -> np.ndarray:
-    u = (np.asarray(x, dtype=np.float64) - bank.in_center) / bank.in_half
+    u = np.clip((np.asarray(x, dtype=np.float64) - bank.in_center) / bank.in_half, -1.0, 1.0)
     return u - bank.offset if bank.inverse else u
 
 
-def _physical_output(bank: PIBank, s: np.ndarray) -> np.ndarray:
+def _physical_output(bank: PIBank, s: np.ndarray, x: np.ndarray) -> np.ndarray:
     y = np.einsum("bn,bn->b", bank.w, s)
     if not bank.inverse:
         y = y + bank.offset
-    return y * bank.out_half + bank.out_center
+    below = np.minimum(x - (bank.in_center - bank.in_half), 0.0)
+    return y * bank.out_half + bank.out_center + bank.lo_gain * below
 
 
 def init(bank: PIBank, x0) -> np.ndarray:
@@ -124,7 +136,7 @@ def step(bank: PIBank, state: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
         Output in physical units (duty % from the inverse bank).
     """
     s = play.step(bank.r, state, _unit_input(bank, x)[:, None])
-    return s, _physical_output(bank, s)
+    return s, _physical_output(bank, s, x)
 
 
 
@@ -140,3 +152,48 @@ def inverse_state_from_forward(inv: PIBank, fwd: PIBank, fwd_state: np.ndarray) 
     head = np.cumsum(w, axis=1) - w  # sum_{j<i} w_j
     tail = np.cumsum((w * fwd_state)[:, ::-1], axis=1)[:, ::-1]  # sum_{j>=i} w_j y_j
     return head * fwd_state + tail
+
+
+@dataclass(frozen=True, eq=False)
+class LeadParams:
+    """Inversion of the valve's first-order lag for the feedforward, per candidate.
+
+    ``F(s) = (lead_s s + 1) / (lag_s s + 1)`` on the flow reference before the
+    inverse PI: the valve is a static hysteresis followed by a lag
+    ``1 / (tau s + 1)`` (a Hammerstein model), so ``lead_s = tau`` cancels
+    the lag and ``lag_s`` (a few ms) keeps the inversion proper and bounds
+    its gain on steps to ``lead_s / lag_s``. ``lead_s = 0`` and ``lag_s = 0``
+    is the identity.
+
+    Attributes
+    ----------
+    lead_s, lag_s : ndarray, shape (B,)
+        Time constants, s.
+    """
+
+    lead_s: np.ndarray
+    lag_s: np.ndarray
+
+    @classmethod
+    def make(cls, batch: int = 1, lead_s=0.0, lag_s=0.0) -> "LeadParams":
+        def col(v):
+            return np.broadcast_to(np.asarray(v, dtype=np.float64), (batch,)).copy()
+
+        return cls(col(lead_s), col(lag_s))
+
+
+class LeadState(NamedTuple):
+    ref_prev_lpm: np.ndarray
+    out_prev_lpm: np.ndarray
+
+
+def lead_init(p: LeadParams, ref0_lpm) -> LeadState:
+    """At rest at ``ref0_lpm``."""
+    r = np.broadcast_to(np.asarray(ref0_lpm, dtype=np.float64), p.lead_s.shape).copy()
+    return LeadState(r, r.copy())
+
+
+def lead_step(p: LeadParams, s: LeadState, ref_lpm: np.ndarray, dt_s: float) -> tuple[LeadState, np.ndarray]:
+    """One period of ``F(s)`` by backward Euler: ``lag (y - y') / dt + y = lead (r - r') / dt + r``."""
+    y = (p.lag_s * s.out_prev_lpm + p.lead_s * (ref_lpm - s.ref_prev_lpm) + dt_s * ref_lpm) / (p.lag_s + dt_s)
+    return LeadState(ref_lpm, y), y
