@@ -1,0 +1,42 @@
+"""Find the physics a simulation leaves out: locate the mismatch, name the effect, model it, show the fit improve."""
+from __future__ import annotations
+
+import sys
+
+
+def add_arguments(p) -> None:
+    p.add_argument("recording", metavar="REC.csv", help="recording (t_s, duty_pct, flow_lpm; supply_bar, coil_temp_c used)")
+    p.add_argument("--model", default=None, metavar="MODEL.json",
+                   help="the simulation to hold the recording against (default: the paper's PI, n = 50, "
+                        "fitted on the recording's training rows)")
+    p.add_argument("--json", required=True, metavar="D.json", help='{"baseline", "findings", "model"}')
+    p.add_argument("--predictions", default=None, metavar="P.csv",
+                   help="t_s, flow_lpm, baseline_lpm, augmented_lpm, holdout per recording row")
+    p.add_argument("--report", default=None, metavar="DIR", help="Markdown report with PNG plots")
+
+
+def run(args) -> int:
+    from models.diagnose import diagnose_response
+    from models.diagnose.report import write_json, write_predictions, write_report
+    from models.model import load_model
+    from models.recording import read_recording
+
+    rec = read_recording(args.recording)
+    model = load_model(args.model) if args.model else None
+    progress = None
+    if sys.stderr.isatty():
+        def progress(word):
+            sys.stderr.write(f"\rtesting {word:<24}")
+            sys.stderr.flush()
+    diag = diagnose_response(rec, model, progress=progress)
+    if progress:
+        sys.stderr.write("\r" + " " * 40 + "\r")
+    write_json(diag, args.json)
+    if args.predictions:
+        write_predictions(diag, args.predictions)
+    if args.report:
+        write_report(diag, args.report, source=args.recording)
+    names = ", ".join(f"{f.effect} ({f.holdout_rmse_before:.3f} -> {f.holdout_rmse_after:.3f} L/min)"
+                      for f in diag.findings) or "none"
+    print(f"baseline RMSE {diag.baseline.rmse:.3f} L/min r {diag.baseline.r:.5f}; findings: {names} -> {args.json}")
+    return 0

@@ -1,0 +1,353 @@
+"""One detector per effect word of DESIGN.md, and the greedy selection of effects.
+
+A detector tests an effect's physical signature the only way that survives
+the strongly autocorrelated residuals of a simulation: it fits the augmented
+model (baseline + the effect's physical law, :mod:`models.diagnose.effects`)
+and asks whether it predicts *held-out* blocks better. Nonlinear parameters
+(time constants, delay, exponent, cracking duty, full-open flow) are searched
+on a grid; for each cross-validation fold the grid point is chosen on that
+fold's training rows only, so the held-out error is honest. An effect is
+named when the pooled held-out error falls by more than its calibrated margin
+(:mod:`models.diagnose.calibrate`, from effect-free recordings) and falls in
+at least ``min_wins`` of the folds, and its parameters are physically
+plausible. Effects are added greedily, strongest first, each on top of those
+already named (forward selection with refit); the margin is the price of an
+extra effect, as in an information criterion, so fewer effects are preferred.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from . import effects as fx
+from .calibrate import Margins
+from .design import Base, CVResult, Design, build, cross_validate, fit_final, refit_base
+from .folds import Folds
+from .signals import Signals
+
+#: Effect words of DESIGN.md, in the order the chain applies them does not matter here.
+WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dynamics", "transport_delay",
+         "dead_zone", "saturation", "creep", "sensor_offset")
+#: Most effects named in one recording.
+MAX_EFFECTS = 4
+#: Alternations of parameter search and baseline refit for a named effect.
+REFIT_ROUNDS = 2
+
+
+@dataclass(frozen=True)
+class Effect:
+    """What the diagnosis knows of one effect word.
+
+    Attributes
+    ----------
+    word : str
+        DESIGN.md effect word.
+    physics : str
+        One line: the law modelled.
+    units : dict
+        Reported parameter -> unit (DESIGN.md's for the effect parameter).
+    plausible : dict
+        Reported parameter -> (lo, hi) physically plausible range.
+    grid : callable
+        ``grid(sig, base) -> {param: values}`` of the nonlinear parameters (empty: linear only).
+    applicable : callable
+        ``applicable(sig, base) -> None`` or the reason it cannot be identified.
+    """
+
+    word: str
+    physics: str
+    units: dict
+    plausible: dict
+    grid: Callable
+    applicable: Callable = lambda sig, base: None
+
+
+def _always(sig, base):
+    return None
+
+
+def _dead_zone_grid(sig: Signals, base: Base) -> dict:
+    lo = float(np.min(sig.duty_pct))
+    hi = float(np.percentile(sig.duty_pct, 40))
+    c = np.unique(np.round(np.linspace(lo, hi, 14)[1:], 2))
+    frac = np.array([np.mean(sig.duty_pct <= v) for v in c])
+    return {"cracking_pct": c[(frac >= 0.01) & (c <= 50.0)]}
+
+
+def _saturation_grid(sig: Signals, base: Base) -> dict:
+    q = np.percentile(sig.flow_lpm, [75, 82, 88, 92, 95, 97, 98.5, 99.3])
+    return {"full_open_lpm": np.unique(np.round(q, 2))}
+
+
+def _heating_grid(sig: Signals, base: Base) -> dict:
+    if sig.coil_temp_c is not None:
+        return {}
+    dur = sig.t_s[-1] - sig.t_s[0]
+    tau = np.geomspace(8.0, 1200.0, 7)
+    # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
+    return {"tau_s": tau[tau <= 2.0 * dur], "rise55_k": np.geomspace(4.0, 160.0, 5), "start": np.array([0.0, 1.0])}
+
+
+def _no_supply(sig, base):
+    return None if sig.supply_bar is not None else "no varying supply_bar column: the pressure cannot be seen"
+
+
+def _offset_identifiable(sig, base):
+    if base.refit:
+        return ("absorbed by the offset c of Eq. (4) of a baseline fitted on this recording; "
+                "give the simulation's model file (--model) to test it")
+    return None
+
+
+def _dead_zone_applicable(sig, base):
+    return None if len(_dead_zone_grid(sig, base)["cracking_pct"]) else "the duty never goes low enough"
+
+
+EFFECTS = {
+    "asymmetric_hysteresis": Effect(
+        "asymmetric_hysteresis", "descending branch held above the symmetric loop by a * (flow / 200 L/min) * its width",
+        {"extra_width": "relative (1 = twice as wide) at full flow"}, {"extra_width": (0.01, 5.0)},
+        lambda sig, base: {}),
+    "coil_heating": Effect(
+        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty (1 + 0.00393 T_mean)/(1 + 0.00393 T)",
+        {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0"},
+        {"rise55_k": (1.0, 200.0), "tau_s": (2.0, 3600.0)}, _heating_grid),
+    "supply_pressure": Effect(
+        "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column",
+        {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
+        {"exponent": (0.3, 2.0)}, lambda sig, base: {"exponent": np.array([0.25, 0.5, 0.75, 1.0, 1.25, 1.6, 2.0])},
+        _no_supply),
+    "valve_dynamics": Effect(
+        "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q",
+        {"tau_s": "s"}, {"tau_s": (0.002, 2.0)},
+        lambda sig, base: {"tau_s": np.geomspace(max(0.4 / sig.rate_hz, 0.004), 1.5, 16)}),
+    "transport_delay": Effect(
+        "transport_delay", "pure delay from command to measured flow",
+        {"delay_s": "s"}, {"delay_s": (0.001, 1.0)},
+        lambda sig, base: {"delay_s": np.geomspace(max(0.4 / sig.rate_hz, 0.003), 0.8, 16)}),
+    "dead_zone": Effect(
+        "dead_zone", "no flow while the duty is below the cracking duty",
+        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, _dead_zone_grid, _dead_zone_applicable),
+    "saturation": Effect(
+        "saturation", "flow clipped at the full-open flow",
+        {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, _saturation_grid),
+    "creep": Effect(
+        "creep", "after each change the flow creeps on by a fraction a of it: q - a (q - lag_tau(q))",
+        {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
+        {"amplitude": (0.003, 0.5), "tau_s": (0.3, 1000.0)},
+        lambda sig, base: {"tau_s": np.geomspace(0.5, min(400.0, (sig.t_s[-1] - sig.t_s[0]) / 4), 11)}),
+    "sensor_offset": Effect(
+        "sensor_offset", "constant zero offset of the flow sensor",
+        {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}, lambda sig, base: {}, _offset_identifiable),
+}
+
+
+def grid_points(effect: Effect, sig: Signals, base: Base) -> list[dict]:
+    """Every combination of the effect's nonlinear grid ({} once for a linear effect)."""
+    g = effect.grid(sig, base)
+    keys = list(g)
+    return [dict(zip(keys, v)) for v in itertools.product(*(g[k] for k in keys))]
+
+
+@dataclass
+class Candidate:
+    """The held-out test of one effect on top of a chain.
+
+    Attributes
+    ----------
+    word : str
+        Effect word.
+    gain : float
+        Relative fall of the pooled held-out squared error (the score).
+    wins : int
+        Folds whose held-out error fell.
+    params : dict
+        Nonlinear parameters chosen on all training rows.
+    test_before, test_after : ndarray
+        Held-out squared error per fold.
+    """
+
+    word: str
+    gain: float
+    wins: int
+    params: dict
+    test_before: np.ndarray
+    test_after: np.ndarray
+
+
+def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds) -> Candidate:
+    """Cross-validated test of ``word`` added to ``chain``."""
+    points = grid_points(EFFECTS[word], sig, base)
+    results = [cross_validate(build(base, sig, {**chain, word: p}), sig.flow_lpm, folds) for p in points]
+    train = np.array([r.train for r in results])          # (G, K)
+    test = np.array([r.test for r in results])
+    pick = np.argmin(train, axis=0)                        # per fold, chosen on its training rows
+    after = test[pick, np.arange(folds.k)]
+    best = points[int(np.argmin(train.sum(axis=1)))]
+    gain = 1.0 - after.sum() / before.test.sum()
+    return Candidate(word, float(gain), int(np.sum(after < before.test)), dict(best), before.test, after)
+
+
+def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds: Folds) -> dict:
+    """Polish the nonlinear parameters of ``word`` on the training rows (log-scale bounded search)."""
+    grid = EFFECTS[word].grid(sig, base)
+    params = dict(params)
+    y = sig.flow_lpm
+    rows = folds.train
+    for key, values in grid.items():
+        values = np.asarray(values, dtype=float)
+        if len(values) < 3 or np.any(values <= 0):
+            continue
+        i = int(np.argmin(np.abs(values - params[key])))
+        lo, hi = np.log(values[max(i - 1, 0)]), np.log(values[min(i + 1, len(values) - 1)])
+
+        def cost(u):
+            d = build(base, sig, {**chain, word: {**params, key: float(np.exp(u))}})
+            return train_sse(d, y, rows)
+
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02, "maxiter": 12})
+        if res.fun < cost(np.log(params[key])):
+            params[key] = float(np.exp(res.x))
+    return params
+
+
+def train_sse(design: Design, y: np.ndarray, rows: np.ndarray) -> float:
+    """Squared error on ``rows`` of the least-squares fit on those rows."""
+    from .design import _solve
+
+    fr = rows & design.fit_ok
+    p = design.X.shape[1]
+    if p:
+        X = design.X[fr]
+        theta = _solve(X.T @ X, X.T @ (y - design.F)[fr])
+    else:
+        theta = np.zeros(0)
+    e = design.predict(theta)[rows] - y[rows]
+    return float(e @ e)
+
+
+def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, sig: Signals) -> dict:
+    """The effect's parameters in the units of DESIGN.md's effect table (see ``Effect.units``)."""
+    p = {k: float(v) for k, v in chain[word].items()}
+    coef = dict(zip(design.names, theta))
+    if word == "asymmetric_hysteresis":
+        p["extra_width"] = float(coef[word])
+    elif word == "creep":
+        p["amplitude"] = -float(coef[word])  # the column is q - lag(q); creeping on is a negative coefficient
+    elif word == "sensor_offset":
+        p["offset_lpm"] = float(coef[word])
+    elif word == "supply_pressure":
+        lo, hi = np.percentile(sig.supply_bar, [1, 99])
+        p["wander_bar"] = float(hi - lo) / 2.0
+    elif word == "coil_heating" and sig.coil_temp_c is not None:
+        p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
+    return p
+
+
+def implausible(word: str, params: dict) -> str | None:
+    """Why the parameters are not physical for the effect, or None."""
+    bad = []
+    for k, (lo, hi) in EFFECTS[word].plausible.items():
+        if k in params:
+            v = params[k]
+            if word == "creep" and k == "amplitude":
+                v = abs(v)  # creeping back (relaxation) is the same law with the other sign
+            if not lo <= v <= hi:
+                bad.append(f"{k} = {params[k]:.4g} outside {lo:g}..{hi:g} {EFFECTS[word].units[k]}")
+    return "; ".join(bad) or None
+
+
+@dataclass
+class Selection:
+    """Outcome of the greedy forward selection.
+
+    Attributes
+    ----------
+    chain : dict
+        Named effects (in the order added) with their nonlinear parameters.
+    steps : list of Candidate
+        The accepted test of each named effect.
+    base : Base
+        The baseline with its weights refitted through the chain.
+    params : dict
+        Word -> parameters in physical units (:func:`physical_params`).
+    rejected : dict
+        Word -> why it was not named (best gain, folds, margin, plausibility).
+    not_identifiable : dict
+        Word -> why it cannot be tested on this recording with this baseline.
+    """
+
+    base: Base = None
+    chain: dict = field(default_factory=dict)
+    steps: list = field(default_factory=list)
+    params: dict = field(default_factory=dict)
+    rejected: dict = field(default_factory=dict)
+    not_identifiable: dict = field(default_factory=dict)
+
+
+def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=None) -> Selection:
+    """Greedy forward selection of effects by blocked cross-validation.
+
+    Parameters
+    ----------
+    base, sig, folds : Base, Signals, Folds
+        Baseline, working-grid signals and their folds.
+    margins : Margins
+        Calibrated per-effect margins on the relative held-out gain, and the fold majority.
+    progress : callable, optional
+        Called with each effect word as it is tested.
+    """
+    sel = Selection()
+    words = []
+    for w in WORDS:
+        reason = EFFECTS[w].applicable(sig, base)
+        if reason:
+            sel.not_identifiable[w] = reason
+        else:
+            words.append(w)
+    y = sig.flow_lpm
+    sel.base = base
+    before = cross_validate(build(base, sig, {}), y, folds)
+    while words and len(sel.chain) < MAX_EFFECTS:
+        cands = []
+        for w in words:
+            if progress:
+                progress(w)
+            cands.append(test_effect(w, sel.chain, before, sel.base, sig, folds))
+        passing = []
+        for c in cands:
+            if c.gain > margins.gain[c.word] and c.wins >= margins.min_wins:
+                passing.append(c)
+            else:
+                sel.rejected[c.word] = (f"held-out error {-100 * c.gain:+.2f} % (needs below -{100 * margins.gain[c.word]:.2f} %), "
+                                        f"lower in {c.wins}/{len(c.test_after)} folds (needs {margins.min_wins})")
+        accepted = None
+        for c in sorted(passing, key=lambda c: -c.gain):
+            params, new_base = c.params, sel.base
+            for _ in range(REFIT_ROUNDS):  # alternate: effect parameters, then the weights through them
+                params = refine(c.word, sel.chain, params, new_base, sig, folds)
+                chain = {**sel.chain, c.word: params}
+                new_base = refit_base(base, sig, chain, folds.train)
+            d = build(new_base, sig, chain)
+            phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
+            why = implausible(c.word, phys)
+            if why:
+                sel.rejected[c.word] = f"fits better but is not physical: {why}"
+                continue
+            c.params = params
+            accepted = (c, chain, new_base, phys)
+            break
+        if accepted is None:
+            break
+        c, sel.chain, sel.base, phys = accepted
+        sel.params[c.word] = phys
+        sel.steps.append(c)
+        sel.rejected.pop(c.word, None)
+        words = [w for w in words if w != c.word and w not in sel.rejected or
+                 (w in sel.rejected and not sel.rejected[w].startswith("fits better"))]
+        before = cross_validate(build(sel.base, sig, sel.chain), y, folds)
+    return sel

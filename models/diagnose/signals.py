@@ -1,0 +1,84 @@
+"""The recording on the diagnosis' working grid.
+
+The diagnosis works at the recording's own rate up to :data:`WORK_RATE_HZ`:
+valve dynamics and transport delay of a few tens of milliseconds live
+around steps, where any smoothing of the measured flow that the model's
+prediction does not also undergo would look like a lag. Faster recordings
+are decimated with every signal, duty included, averaged over a centred
+window of the decimation factor: the same smoothing on input and output
+keeps them aligned, and a boxcar does not ring around steps as a sharp
+lowpass would (a ringing duty fed to a hysteresis model would add
+reversals the valve never saw).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..recording import Recording
+
+#: Working rate of the diagnosis (Hz); recordings slower than this are used as they are.
+WORK_RATE_HZ = 250.0
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Aligned signals on one sample grid, physical units.
+
+    Attributes
+    ----------
+    t_s : ndarray
+        Time (s).
+    duty_pct : ndarray
+        Command duty (%).
+    flow_lpm : ndarray
+        Measured flow (L/min).
+    supply_bar : ndarray or None
+        Supply gauge pressure (bar), when recorded.
+    coil_temp_c : ndarray or None
+        Coil temperature (deg C), when recorded.
+    rate_hz : float
+        Sample rate (Hz).
+    """
+
+    t_s: np.ndarray
+    duty_pct: np.ndarray
+    flow_lpm: np.ndarray
+    supply_bar: np.ndarray | None
+    coil_temp_c: np.ndarray | None
+    rate_hz: float
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+def _varies(x: np.ndarray | None) -> bool:
+    return x is not None and float(np.ptp(x)) > 0.0
+
+
+def raw_signals(rec: Recording) -> Signals:
+    """The recording at its own rate (for per-row predictions)."""
+    return Signals(rec.t_s, rec.duty_pct, rec.flow_lpm,
+                   rec.get("supply_bar") if _varies(rec.get("supply_bar")) else None,
+                   rec.get("coil_temp_c") if _varies(rec.get("coil_temp_c")) else None,
+                   rec.rate_hz)
+
+
+def work_signals(rec: Recording, rate_hz: float = WORK_RATE_HZ) -> Signals:
+    """Decimate a recording to about ``rate_hz`` (unchanged when not faster than 1.5 x that)."""
+    raw = raw_signals(rec)
+    factor = int(raw.rate_hz // rate_hz)
+    if raw.rate_hz < 1.5 * rate_hz or factor < 2:
+        return raw
+    kernel = np.ones(factor) / factor
+
+    def average(x):
+        if x is None:
+            return None
+        # centred moving average, edges padded with the end values
+        pad = np.concatenate([np.full(factor // 2, x[0]), x, np.full(factor - 1 - factor // 2, x[-1])])
+        return np.convolve(pad, kernel, mode="valid")[::factor]
+
+    return Signals(raw.t_s[::factor], average(raw.duty_pct), average(raw.flow_lpm),
+                   average(raw.supply_bar), average(raw.coil_temp_c), raw.rate_hz / factor)
