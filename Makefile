@@ -21,6 +21,10 @@ test: setup
 run: setup
 	$(VENV)/bin/valvectl compare $(DATA)/bench_identification.csv --validate $(DATA)/bench_validation.csv --json compare.json --plot compare.png
 
+# The simulated valve's default forward model: the PI fitted on the identification recording.
+model: setup
+	$(VENV)/bin/valvectl fit $(DATA)/bench_identification.csv --model pi -o config/valve_model.json
+
 bench: setup
 	for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 

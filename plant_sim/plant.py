@@ -1,0 +1,373 @@
+"""The simulated valve: parameters, the single plant and the batched plant.
+
+Duty (%) in, measured flow (L/min) out, stepped at a fixed rate. The forward
+model is a fitted PI (``config/valve_model.json``); the sensor is SFM3300-like;
+the effects of :mod:`plant_sim.effects` add the physics the PI leaves out.
+Both plants run the one kernel of :mod:`plant_sim.kernel`; :class:`Plant` is
+the batch of one.
+
+Sensor noise is white with ``noise_lpm`` standard deviation per reading,
+independent of the step rate: the SFM3300 converts every 0.5 ms and a reader
+polling at any slower rate gets single conversions, not averages. The bench
+recordings agree: their noise is 0.50 L/min per sample at 20 Hz and at 100 Hz
+(robust estimate from second differences).
+
+Shapes follow google/deluca: ``init(duty0) -> state``, ``step(state, duty) ->
+(state, output)``, pure (the kernel writes the new state to new arrays).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from dataclasses import dataclass
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from models.model import FittedModel, load_model
+from models.recording import InputError
+
+from . import kernel as K
+from .effects import EFFECTS, check_effect
+
+DEFAULT_PLANT = "config/plant.toml"
+
+
+@dataclass(frozen=True, eq=False)
+class PlantParams:
+    """Everything that defines one simulated valve.
+
+    Attributes
+    ----------
+    model : FittedModel
+        Forward PI, duty % -> flow L/min, identified at ``model_supply_bar``.
+    noise_lpm : float
+        Sensor white noise, standard deviation per reading, L/min.
+    scale_factor : float
+        Sensor scale factor, counts per L/min (SFM3300: 120); 0 = no quantization.
+    range_lpm : tuple of float
+        Sensor range, L/min (SFM3300: -250..250 slm).
+    supply_bar : float
+        Nominal supply, bar gauge.
+    model_supply_bar : float
+        Supply at which the model was identified, bar gauge.
+    atmosphere_bar : float
+        Ambient pressure, bar absolute.
+    droop_bar : float
+        Supply droop at ``droop_ref_lpm`` (∝ flow²), bar; with ``supply_pressure``.
+    droop_ref_lpm : float
+        Flow at which the droop is ``droop_bar``, L/min.
+    wander_tau_s : float
+        Correlation time of the supply wander, s.
+    ambient_c : float
+        Ambient (and cold-coil) temperature, °C; the model is the valve at ambient.
+    coil_tau_s : float
+        Thermal time constant of the coil, s.
+    coil_alpha_per_k : float
+        Temperature coefficient of the coil resistance (copper: 0.00393 /K).
+    dynamics_order : int
+        Order of the ``valve_dynamics`` lag, 1 or 2.
+    creep_tau_s : float
+        Time constant of the creep relaxation, s.
+    asymmetric_hysteresis, coil_heating, supply_pressure, valve_dynamics,
+    transport_delay, dead_zone, saturation, creep, sensor_offset : float
+        The effects, in the units of DESIGN.md (see :data:`plant_sim.effects.EFFECTS`); 0 = off.
+    """
+
+    model: FittedModel
+    noise_lpm: float = 0.5
+    scale_factor: float = 120.0
+    range_lpm: tuple[float, float] = (-250.0, 250.0)
+    supply_bar: float = 3.0
+    model_supply_bar: float = 3.0
+    atmosphere_bar: float = 1.01325
+    droop_bar: float = 0.15
+    droop_ref_lpm: float = 200.0
+    wander_tau_s: float = 30.0
+    ambient_c: float = 25.0
+    coil_tau_s: float = 180.0
+    coil_alpha_per_k: float = 0.00393
+    dynamics_order: int = 1
+    creep_tau_s: float = 20.0
+    asymmetric_hysteresis: float = 0.0
+    coil_heating: float = 0.0
+    supply_pressure: float = 0.0
+    valve_dynamics: float = 0.0
+    transport_delay: float = 0.0
+    dead_zone: float = 0.0
+    saturation: float = 0.0
+    creep: float = 0.0
+    sensor_offset: float = 0.0
+
+    def __post_init__(self):
+        if self.model.kind != "pi":
+            raise InputError(f"plant model: kind {self.model.kind!r}, the plant needs a 'pi' model")
+        if self.dynamics_order not in (1, 2):
+            raise InputError(f"plant: dynamics_order must be 1 or 2, got {self.dynamics_order}")
+        for name in EFFECTS:
+            object.__setattr__(self, name, check_effect(name, getattr(self, name), "plant"))
+
+    @property
+    def effects(self) -> dict[str, float]:
+        """The effects that are on, ``{word: value}``."""
+        return {n: getattr(self, n) for n in EFFECTS if getattr(self, n) != 0.0}
+
+    def replace(self, **changes) -> "PlantParams":
+        """A copy with some fields changed (effects validated)."""
+        return dataclasses.replace(self, **changes)
+
+
+_SECTIONS = {
+    "sensor": {"noise_lpm", "scale_factor", "range_lpm"},
+    "supply": {"supply_bar", "model_supply_bar", "atmosphere_bar", "droop_bar", "droop_ref_lpm", "wander_tau_s"},
+    "coil": {"ambient_c", "coil_tau_s", "coil_alpha_per_k"},
+    "valve": {"dynamics_order", "creep_tau_s"},
+    "effects": set(EFFECTS),
+}
+
+
+def load_plant(
+    path: str | os.PathLike = DEFAULT_PLANT,
+    effects: dict[str, float] | None = None,
+    **overrides,
+) -> PlantParams:
+    """Read a plant TOML file, then apply ``effects`` and field ``overrides``.
+
+    The file's ``model`` key names the model file, relative to the TOML's folder.
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    fields: dict = {}
+    for key, value in doc.items():
+        if key == "model":
+            continue
+        if key not in _SECTIONS or not isinstance(value, dict):
+            raise InputError(f"{path}: key '{key}': unknown (expected model, {', '.join(_SECTIONS)})")
+        for name, v in value.items():
+            if name not in _SECTIONS[key]:
+                raise InputError(f"{path}: key '{key}.{name}': unknown")
+            fields[name] = tuple(v) if isinstance(v, list) else v
+    if "model" not in doc:
+        raise InputError(f"{path}: key 'model': missing (path of the forward model file)")
+    model_path = os.path.join(os.path.dirname(os.path.abspath(path)), doc["model"])
+    for name, v in (effects or {}).items():
+        fields[name] = check_effect(name, v, "effect")
+    fields.update(overrides)
+    try:
+        return PlantParams(model=load_model(model_path), **fields)
+    except TypeError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+class PlantState(NamedTuple):
+    """State of B plants: step counter, play operators (m, B), scalar states (B, S), delay line (B, L)."""
+
+    k: int
+    play: np.ndarray
+    x: np.ndarray
+    buf: np.ndarray
+
+
+class PlantOutput(NamedTuple):
+    """One step's outputs (floats for :class:`Plant`, arrays (B,) for :class:`BatchPlant`).
+
+    Attributes
+    ----------
+    flow_lpm : measured flow (sensor offset, noise, quantization, range), L/min
+    true_flow_lpm : flow at the sensor without sensor errors, L/min
+    supply_bar : supply pressure, bar gauge
+    coil_temp_c : coil temperature, °C
+    """
+
+    flow_lpm: float | np.ndarray
+    true_flow_lpm: float | np.ndarray
+    supply_bar: float | np.ndarray
+    coil_temp_c: float | np.ndarray
+
+
+def _delay_samples(delay_s: float, rate_hz: float) -> tuple[int, float]:
+    """Whole samples and fractional remainder of a delay; near-whole counts are whole."""
+    d = delay_s * rate_hz
+    n = round(d)
+    if abs(d - n) < 1e-9:
+        return int(n), 0.0
+    return int(math.floor(d)), d - math.floor(d)
+
+
+def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
+    """The kernel's parameter vector for one plant at ``rate_hz``."""
+    dt = 1.0 / rate_hz
+    v = np.zeros(K.N_PARAMS)
+    xs, ys = p.model.x_scale, p.model.y_scale
+    v[K.XC], v[K.XH], v[K.YC], v[K.YH] = xs.center, xs.half_range, ys.center, ys.half_range
+    v[K.OFF] = p.model.core.offset
+    v[K.GAIN_LO] = ys.half_range / xs.half_range
+    v[K.ASYM] = p.asymmetric_hysteresis
+    v[K.HEAT_K], v[K.E_TH], v[K.T_AMB], v[K.ALPHA] = (
+        p.coil_heating, math.exp(-dt / p.coil_tau_s), p.ambient_c, p.coil_alpha_per_k)
+    e_w = math.exp(-dt / p.wander_tau_s)
+    v[K.P_NOM], v[K.P_MODEL_ABS], v[K.P_ATM] = p.supply_bar, p.model_supply_bar + p.atmosphere_bar, p.atmosphere_bar
+    v[K.WANDER], v[K.E_W], v[K.SQ_W] = p.supply_pressure, e_w, math.sqrt(1.0 - e_w * e_w)
+    v[K.DROOP] = p.droop_bar / p.droop_ref_lpm ** 2
+    tau = p.valve_dynamics
+    if tau > 0.0:
+        v[K.ORDER] = p.dynamics_order
+        if p.dynamics_order == 1:
+            e = math.exp(-dt / tau)
+            v[K.PHI11], v[K.G1] = e, 1.0 - e
+        else:  # critically damped, both poles at 2/tau: total lag tau
+            a = 2.0 / tau
+            e = math.exp(-a * dt)
+            v[K.PHI11], v[K.G1] = e, 1.0 - e
+            v[K.PHI21], v[K.PHI22], v[K.G2] = a * dt * e, e, 1.0 - e - a * dt * e
+    v[K.DELAY_N], v[K.DELAY_F] = _delay_samples(p.transport_delay, rate_hz)
+    v[K.CRACK], v[K.SAT] = p.dead_zone, p.saturation
+    v[K.CREEP], v[K.E_CREEP] = p.creep, math.exp(-dt / p.creep_tau_s)
+    v[K.NOISE], v[K.SENSOR_OFFSET], v[K.SCALE] = p.noise_lpm, p.sensor_offset, p.scale_factor
+    v[K.RANGE_LO], v[K.RANGE_HI] = p.range_lpm
+    return v
+
+
+class BatchPlant:
+    """B simulated valves, each with its own parameters and seed, stepped as one array.
+
+    Parameters
+    ----------
+    params : PlantParams or sequence of PlantParams
+    rate_hz : float
+        Step rate, Hz.
+    seed : int or sequence of int
+        Noise seeds; an int ``s`` gives plant ``i`` the seed ``s + i``, so plant
+        ``i`` reproduces ``Plant(params[i], rate_hz, seed=s + i)`` bit for bit.
+    """
+
+    def __init__(self, params: PlantParams | Sequence[PlantParams], rate_hz: float, seed: int | Sequence[int] = 0):
+        self.params = [params] if isinstance(params, PlantParams) else list(params)
+        if not self.params:
+            raise ValueError("BatchPlant needs at least one plant")
+        if not rate_hz > 0:
+            raise InputError(f"--rate: must be positive, got {rate_hz}")
+        self.rate_hz = float(rate_hz)
+        B = len(self.params)
+        seeds = [seed + i for i in range(B)] if isinstance(seed, (int, np.integer)) else list(seed)
+        if len(seeds) != B:
+            raise ValueError(f"{len(seeds)} seeds for {B} plants")
+        self.seeds = seeds
+        self._keys = np.array([K.plant_keys(s) for s in seeds], dtype=np.uint64)
+        self._P = np.array([_pack(p, self.rate_hz) for p in self.params])
+        models = {(c.r.tobytes(), c.w.tobytes(), c.y0.tobytes()): c for c in (p.model.core for p in self.params)}
+        m = max(len(c.r) for c in models.values())
+        # operator-major (m, B): the kernel updates operator i of every plant as one vector;
+        # one column when every plant has the same model
+        cols = len(self.params) if len(models) > 1 else 1
+        self._R = np.zeros((m, cols))
+        self._W = np.zeros((m, cols))  # padding operators have zero weight
+        self._Y0 = np.zeros((m, cols))
+        for b, p in enumerate(self.params[:cols]):
+            core = p.model.core
+            self._R[: len(core.r), b] = core.r
+            self._W[: len(core.w), b] = core.w
+            self._Y0[: len(core.y0), b] = core.y0
+        n_del = self._P[:, K.DELAY_N].astype(int) + (self._P[:, K.DELAY_F] > 0)
+        self._L = int(n_del.max()) + 1 if n_del.max() > 0 else 1
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def init(self, duty0_pct: float | np.ndarray) -> PlantState:
+        """Plants at rest at ``duty0_pct``: operators by Eq. (3), lag and delay line settled, coil at ambient."""
+        B = len(self)
+        d0 = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (B,))
+        P = self._P
+        u0 = np.clip((d0 - P[:, K.XC]) / P[:, K.XH], -1.0, 1.0)
+        play = np.maximum(u0 - self._R, np.minimum(u0 + self._R, self._Y0))  # Eq. (3), shape (m, B)
+        x = np.zeros((B, K.N_STATE))
+        x[:, K.S_TEMP] = P[:, K.T_AMB]
+        x[:, K.S_U_PREV] = u0
+        state = PlantState(0, play, x, np.zeros((B, self._L)))
+        new, _ = self._advance(state, d0[None, :].copy(), settle=True)
+        return PlantState(0, new.play, new.x, new.buf)
+
+    def _advance(self, state: PlantState, duty: np.ndarray, settle: bool = False):
+        """Run the kernel on ``duty`` of shape (N, B); outputs (N, B, N_OUT)."""
+        out = np.empty(duty.shape + (K.N_OUT,))
+        play, x, buf = np.empty_like(state.play), np.empty_like(state.x), np.empty_like(state.buf)
+        K.advance(duty, state.k, settle, self._P, self._R, self._W, self._keys,
+                  state.play, state.x, state.buf, play, x, buf, out)
+        return PlantState(state.k + duty.shape[0], play, x, buf), out
+
+    def step(self, state: PlantState, duty_pct: np.ndarray) -> tuple[PlantState, PlantOutput]:
+        """One step of every plant; ``duty_pct`` shape (B,) (or a scalar for all)."""
+        duty = np.empty((1, len(self)))
+        duty[0, :] = duty_pct
+        state, out = self._advance(state, duty)
+        o = out[0]
+        return state, PlantOutput(o[:, K.O_FLOW], o[:, K.O_TRUE], o[:, K.O_SUPPLY], o[:, K.O_TEMP])
+
+    def run(self, state: PlantState, duty_pct: np.ndarray) -> tuple[PlantState, dict[str, np.ndarray]]:
+        """Many steps at once: ``duty_pct`` shape (B, N); returns the state and columns (B, N).
+
+        Chunks chain like ``lfilter``'s ``zi``/``zf``: running two chunks equals running them joined.
+        """
+        duty = np.broadcast_to(np.asarray(duty_pct, dtype=np.float64), (len(self), np.shape(duty_pct)[-1]))
+        state, out = self._advance(state, np.ascontiguousarray(duty.T))
+        cols = out.transpose(1, 0, 2)  # (B, N, N_OUT)
+        return state, {
+            "flow_lpm": np.ascontiguousarray(cols[..., K.O_FLOW]),
+            "true_flow_lpm": np.ascontiguousarray(cols[..., K.O_TRUE]),
+            "supply_bar": np.ascontiguousarray(cols[..., K.O_SUPPLY]),
+            "coil_temp_c": np.ascontiguousarray(cols[..., K.O_TEMP]),
+        }
+
+    def simulate(self, duty_pct: np.ndarray) -> dict[str, np.ndarray]:
+        """A whole recording from rest at the first duty: ``t_s`` (N,) and columns (B, N)."""
+        duty = np.asarray(duty_pct, dtype=np.float64)
+        first = duty[..., 0]
+        _, cols = self.run(self.init(first), duty)
+        n = duty.shape[-1]
+        return {"t_s": np.arange(n) / self.rate_hz, "duty_pct": np.broadcast_to(duty, (len(self), n)), **cols}
+
+
+class Plant:
+    """One simulated valve: the batch of one, with float inputs and outputs.
+
+    Parameters
+    ----------
+    params : PlantParams
+    rate_hz : float
+        Step rate, Hz.
+    seed : int
+        Noise seed; a fixed seed reproduces a recording bit for bit.
+    """
+
+    def __init__(self, params: PlantParams, rate_hz: float, seed: int = 0):
+        self.params = params
+        self.rate_hz = float(rate_hz)
+        self.seed = int(seed)
+        self._batch = BatchPlant([params], rate_hz, [seed])
+        self._duty = np.empty((1, 1))
+
+    def init(self, duty0_pct: float) -> PlantState:
+        """The valve at rest at ``duty0_pct`` (see :meth:`BatchPlant.init`)."""
+        return self._batch.init(duty0_pct)
+
+    def step(self, state: PlantState, duty_pct: float) -> tuple[PlantState, PlantOutput]:
+        """One step: command ``duty_pct`` (%), read the flow (L/min)."""
+        self._duty[0, 0] = duty_pct
+        state, out = self._batch._advance(state, self._duty)
+        o = out[0, 0]
+        return state, PlantOutput(float(o[0]), float(o[1]), float(o[2]), float(o[3]))
+
+    def simulate(self, duty_pct: np.ndarray) -> dict[str, np.ndarray]:
+        """A whole recording from rest at ``duty_pct[0]``: columns ``t_s, duty_pct, flow_lpm,
+        true_flow_lpm, supply_bar, coil_temp_c`` (N,)."""
+        cols = self._batch.simulate(np.asarray(duty_pct, dtype=np.float64)[None, :])
+        return {k: (v if v.ndim == 1 else v[0]) for k, v in cols.items()}
