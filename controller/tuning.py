@@ -87,3 +87,69 @@ def grid_tune(make_params, grid: dict[str, list[float]], make_plant, ref_lpm, ra
     iae = res.iae(skip_s)
     best = int(np.nanargmin(iae))
     return dict(zip(names, points[best])), iae
+
+
+#: The grids behind the gains of config/run.toml (feedforward lead lag in s, PID gains in %
+#: per L/min, per L/min s and % s per L/min, Kalman noise std per period in L/min).
+GRIDS = {
+    "pid": {"kp": [0.05, 0.1, 0.2, 0.4, 0.8], "ki": [2.0, 5.0, 10.0, 20.0, 40.0, 80.0], "kd": [0.0, 0.001, 0.003]},
+    "ff+pid": {"kp": [0.1, 0.2, 0.4, 0.8], "ki": [3.0, 10.0, 20.0], "kd": [0.0, 0.001], "lead_lag_s": [0.003, 0.005, 0.008]},
+    "ff+kf": {"q_flow_lpm": [3.0, 10.0, 30.0], "q_bias_lpm": [0.003, 0.01, 0.03], "lead_lag_s": [0.003, 0.005, 0.008]},
+}
+
+
+def tune(config_path: str = "config/run.toml") -> dict:
+    """Grid-tune every feedback controller on the run's simulated valve and profile; ``{word: (best, iae)}``."""
+    import dataclasses
+
+    from models.model import load_model
+    from plant_sim.plant import BatchPlant, load_plant
+    from plant_sim.protocols import BreathProfile
+
+    from .config import controller_params, load_run_config, preview_s
+    from .laws import feedforward as ffw
+    from .laws import kalman, pid
+
+    cfg = load_run_config(config_path)
+    top, rate = cfg[""], cfg["loop"]["rate_hz"]
+    model = load_model(cfg.resolve(top["model"]))
+    pp = load_plant(cfg.resolve(top["plant_config"]), effects=cfg["effects"])
+    ref = BreathProfile(**cfg["profile"]).value(np.arange(int(top["duration_s"] * rate)) / rate)
+    preview = int(round(preview_s(cfg, "profile") * rate))
+    valve, dt = cfg["valve"], 1.0 / rate
+
+    def maker(word):
+        base = controller_params(cfg, word, model)
+
+        def make(batch, **cols):
+            def tile(obj):
+                return dataclasses.replace(obj, **{f.name: np.repeat(getattr(obj, f.name), batch, axis=0)
+                                                   for f in dataclasses.fields(obj)
+                                                   if isinstance(getattr(obj, f.name), np.ndarray)})
+
+            kw = {k: tile(getattr(base, k)) for k in ("limits", "inverse", "forward") if getattr(base, k) is not None}
+            if word != "pid":
+                kw["lead"] = ffw.LeadParams.make(batch, valve["tau_s"], cols.pop("lead_lag_s"))
+            if word == "ff+kf":
+                kw["kf"] = kalman.KFParams.make(valve["tau_s"], valve["delay_s"], dt, cols["q_flow_lpm"],
+                                                cols["q_bias_lpm"], cfg["kf"]["r_lpm"], batch)
+            else:
+                g = cfg["pid" if word == "pid" else "ff_pid"]
+                kw["pid"] = pid.PIDParams.make(batch, **{**{k: g[k] for k in ("tf_s", "tt_s")}, **cols})
+            return dataclasses.replace(base, **kw)
+
+        return make
+
+    out = {}
+    for word, grid in GRIDS.items():
+        best, iae = grid_tune(maker(word), grid, lambda b: BatchPlant([pp] * b, rate, top["seed"]), ref, rate,
+                              preview if word != "pid" else 0)
+        out[word] = (best, float(np.nanmin(iae)))
+    return out
+
+
+if __name__ == "__main__":
+    import sys
+
+    for word, (best, iae) in tune(*sys.argv[1:]).items():
+        print(f"{word}: IAE {iae:.4f} L at {best}")

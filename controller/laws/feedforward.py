@@ -8,8 +8,9 @@ closed-form inverse (flow -> duty, Eq. 5-7), taken from a model file
 The model is only known on its identified ranges (the scalings' [-1, 1]).
 The operators see the input clipped to that range, as the simulated valve's
 do; below it the valve is taken as linear with the range's average gain
-(flow half-range over duty half-range) down to closed, and above it as
-saturated (the inverse never asks for more than the top of the range). The feedforward is the inverse bank fed
+(flow half-range over duty half-range) down to no flow (never reverse
+flow), and above it as saturated (the inverse never asks for more than the
+top of the range). A reference of zero flow or less closes the valve (0 %). The feedforward is the inverse bank fed
 with the reference flow; the Kalman feedback also runs the forward bank on the
 applied duty to know what flow the model expects.
 """
@@ -102,16 +103,19 @@ def stack(banks: list[PIBank]) -> PIBank:
 
 
 def _unit_input(bank: PIBank, x: np.ndarray) -> np.ndarray:
-    u = np.clip((np.asarray(x, dtype=np.float64) - bank.in_center) / bank.in_half, -1.0, 1.0)
+    u = np.minimum(np.maximum((x - bank.in_center) / bank.in_half, -1.0), 1.0)
     return u - bank.offset if bank.inverse else u
 
 
 def _physical_output(bank: PIBank, s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    y = np.einsum("bn,bn->b", bank.w, s)
+    y = (bank.w * s).sum(axis=1)
     if not bank.inverse:
         y = y + bank.offset
     below = np.minimum(x - (bank.in_center - bank.in_half), 0.0)
-    return y * bank.out_half + bank.out_center + bank.lo_gain * below
+    y = y * bank.out_half + bank.out_center + bank.lo_gain * below
+    if bank.inverse:
+        return np.where(x > 0.0, y, 0.0)  # no flow asked: the valve closed
+    return np.maximum(y, 0.0)  # no reverse flow through a closed valve
 
 
 def init(bank: PIBank, x0) -> np.ndarray:

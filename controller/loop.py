@@ -1,0 +1,337 @@
+"""The fixed-rate control loop: inputs, watchdog, control law, command, record.
+
+Scheduling: absolute deadlines ``next += period`` on ``time.perf_counter``,
+slept to ``spin_s`` before the deadline and spun from there (sleep alone wakes
+~0.1-0.2 ms late with a long tail; the spin costs about spin/period of a
+core). A step that ends after the next deadline skips the missed deadlines and
+counts each as an overrun (as ros2_control's controller manager does), so the
+loop never tries to catch up with a burst of steps. The garbage collector is
+frozen and disabled while the loop runs.
+
+Per step (one period):
+
+1. wake at the deadline; lateness = wake - deadline;
+2. take the newest measurement and reference from the transport (already
+   received, never waited for); reject and count non-finite or out-of-range
+   values (``bad_measurement`` / ``bad_reference``); clamp the reference to
+   the valve's range;
+3. watchdog: no fresh measurement for ``stale_ms`` -> ``safe`` (command
+   ``safe_duty_pct``, fault ``stale``); fresh data -> ``running`` again,
+   resumed bumplessly (:func:`controller.laws.control.resume`);
+4. the control law (the batch of one) or the safe duty;
+5. command, tracking error, status at ``status_hz``, record row;
+6. compute time = end of the step - wake.
+
+The clock is injectable: :class:`RealClock` for the live loop,
+:class:`SimClock` for tests and fast simulations (time jumps to each deadline).
+"""
+from __future__ import annotations
+
+import gc
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .laws import control
+from .watchdog import FAULT, RUNNING, SAFE, STATES, Faults, Watchdog, in_range
+
+#: Columns of the run recording (DESIGN.md), plus the age of the newest measurement.
+RECORD_COLUMNS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state", "meas_age_ms")
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """Loop rate, watchdog and input limits.
+
+    Attributes
+    ----------
+    rate_hz : float
+        Step rate, Hz.
+    stale_ms : float
+        Measurement age that triggers the safe state, ms.
+    ref_stale_ms : float
+        Age after which a received reference drops to 0 L/min, ms (references that can go stale).
+    safe_duty_pct : float
+        Duty commanded in the safe state, % (0 = valve closed).
+    flow_max_lpm : float
+        The valve's flow range is [0, flow_max_lpm]; references are clamped to it.
+    sensor_range_lpm : tuple of float
+        Plausible readings; measurements and references outside are rejected.
+    status_hz : float
+        Rate of ``ctrl/status``, Hz.
+    spin_s : float
+        Spin margin before each deadline, s.
+    """
+
+    rate_hz: float = 1000.0
+    stale_ms: float = 50.0
+    ref_stale_ms: float = 500.0
+    safe_duty_pct: float = 0.0
+    flow_max_lpm: float = 200.0
+    sensor_range_lpm: tuple[float, float] = (-250.0, 250.0)
+    status_hz: float = 10.0
+    spin_s: float = 300e-6
+
+
+class RealClock:
+    """Wall clock: hybrid sleep-then-spin to absolute deadlines on ``time.perf_counter``."""
+
+    def __init__(self, spin_s: float = 300e-6):
+        self.spin_s = spin_s
+
+    @staticmethod
+    def now() -> float:
+        return time.perf_counter()
+
+    def wait_until(self, deadline: float) -> float:
+        pc = time.perf_counter
+        rest = deadline - pc() - self.spin_s
+        if rest > 0:
+            time.sleep(rest)
+        now = pc()
+        while now < deadline:
+            now = pc()
+        return now
+
+
+class SimClock:
+    """Simulated clock: waiting jumps to the deadline, so a loop runs as fast as it computes."""
+
+    def __init__(self, t0_s: float = 0.0):
+        self.t = t0_s
+
+    def now(self) -> float:
+        return self.t
+
+    def wait_until(self, deadline: float) -> float:
+        self.t = max(self.t, deadline)
+        return self.t
+
+
+class ProfileReference:
+    """A reference that is a pure function of time (a breath profile): always fresh.
+
+    Known in advance, it can be read ``preview_s`` ahead for the feedforward
+    (:meth:`ahead`), so the valve's transport delay is acted early.
+    """
+
+    can_go_stale = False
+
+    def __init__(self, value, preview_s: float = 0.0):
+        self._value = value
+        self.preview_s = preview_s
+
+    def poll(self, t_s: float, accept) -> tuple[float | None, int]:
+        v = float(self._value(t_s))
+        return (v, 0) if accept(v) else (None, 1)
+
+    def ahead(self, t_s: float, accept) -> float | None:
+        """The reference ``preview_s`` ahead, or None (no preview, or a value ``accept`` rejects)."""
+        if self.preview_s <= 0:
+            return None
+        v = float(self._value(t_s + self.preview_s))
+        return v if accept(v) else None
+
+
+class _Columns:
+    """Preallocated per-step arrays (grown by doubling when a run has no set length)."""
+
+    FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "meas_age_ms",
+              "lateness_s", "compute_s")
+
+    def __init__(self, capacity: int):
+        self.n = 0
+        self.a = {f: np.empty(capacity) for f in self.FIELDS}
+        self.state = np.empty(capacity, dtype=np.int8)
+
+    def grow(self) -> None:
+        cap = 2 * len(self.state)
+        for f, v in self.a.items():
+            self.a[f] = np.resize(v, cap)
+        self.state = np.resize(self.state, cap)
+
+    def trimmed(self) -> dict[str, np.ndarray]:
+        out = {f: v[: self.n].copy() for f, v in self.a.items()}
+        out["state"] = self.state[: self.n].copy()
+        return out
+
+
+@dataclass
+class LoopResult:
+    """What a run leaves: per-step columns, faults, step and overrun counts."""
+
+    columns: dict
+    faults: Faults
+    steps: int
+    overruns: int
+    settings: LoopSettings
+
+    @property
+    def rate_hz(self) -> float:
+        """Achieved step rate: steps over the run's span."""
+        t = self.columns["t_s"]
+        if self.steps < 2:
+            return float("nan")
+        return (self.steps - 1) / float(t[-1] - t[0])
+
+
+class Loop:
+    """The loop around one controller (the batch of one of :mod:`controller.laws.control`).
+
+    Parameters
+    ----------
+    params : ControllerParams
+        With ``batch == 1``.
+    transport : object
+        ``poll_measurement(accept) -> (flow | None, n_bad)``, ``command(duty_pct, t_s)``,
+        ``publish_error(t_s, error_lpm)``, ``publish_status(t_s, status)``.
+    reference : object
+        ``poll(t_s, accept) -> (ref | None, n_bad)`` and ``can_go_stale``; with
+        ``preview_s > 0`` also ``ahead(t_s, accept)``, the feedforward's reference.
+    settings : LoopSettings
+    clock : RealClock or SimClock
+    writer : RecordingWriter, optional
+        Receives one row per step (:data:`RECORD_COLUMNS`), flushed as written.
+    """
+
+    def __init__(self, params: control.ControllerParams, transport, reference, settings: LoopSettings,
+                 clock=None, writer=None):
+        if params.batch != 1:
+            raise ValueError("the live loop runs one controller (batch of one)")
+        self.params = params
+        self.transport = transport
+        self.reference = reference
+        self.settings = settings
+        self.clock = clock if clock is not None else RealClock(settings.spin_s)
+        self.writer = writer
+
+    def run(self, duration_s: float | None = None, stop=None) -> LoopResult:
+        """Run for ``duration_s`` seconds (or until ``stop()`` is true); returns the result."""
+        cfg = self.settings
+        period = 1.0 / cfg.rate_hz
+        n_steps = None if duration_s is None else max(1, int(round(duration_s * cfg.rate_hz)))
+        cols = _Columns(n_steps if n_steps else 1 << 16)
+        faults = Faults()
+        accept_meas = in_range(*cfg.sensor_range_lpm)
+        accept_ref = accept_meas
+        status_every = max(1, int(round(cfg.rate_hz / cfg.status_hz)))
+        params, transport, reference, clock, writer = self.params, self.transport, self.reference, self.clock, self.writer
+        pc = time.perf_counter
+        safe = cfg.safe_duty_pct
+        preview = getattr(reference, "preview_s", 0.0) > 0
+
+        meas_dog = Watchdog(cfg.stale_ms * 1e-3, 0.0)
+        ref_dog = Watchdog(cfg.ref_stale_ms * 1e-3, 0.0)
+        state, stale, ref_stale = SAFE, False, False
+        ctrl = None
+        meas = math.nan  # newest accepted measurement
+        ref_in = 0.0
+        duty = safe
+        steps = overruns = 0
+
+        gc.collect()
+        gc.freeze()
+        gc_was_enabled = gc.isenabled()
+        gc.disable()
+        t0 = clock.now()
+        deadline = t0
+        try:
+            while True:
+                now = clock.wait_until(deadline)
+                c0 = pc()
+                t = now - t0
+
+                # 2. inputs
+                v, bad = transport.poll_measurement(accept_meas)
+                if bad:
+                    faults.add("bad_measurement", t, bad)
+                fresh = v is not None
+                if fresh:
+                    meas = v
+                    meas_dog.fresh(t)
+                r, bad = reference.poll(t, accept_ref)
+                if bad:
+                    faults.add("bad_reference", t, bad)
+                if r is not None:
+                    ref_in, ref_stale = r, False
+                    ref_dog.fresh(t)
+                elif reference.can_go_stale and ref_dog.stale(t):
+                    if not ref_stale:
+                        faults.add("stale_reference", t)
+                        ref_stale = True
+                    ref_in = 0.0
+                ref = min(max(ref_in, 0.0), cfg.flow_max_lpm)
+                r_ff = reference.ahead(t, accept_ref) if preview else None
+                ref_ff = ref if r_ff is None else min(max(r_ff, 0.0), cfg.flow_max_lpm)
+
+                # 3. watchdog
+                if meas_dog.stale(t):
+                    if not stale:
+                        faults.add("stale", t)
+                        stale = True
+                    state = SAFE
+                elif fresh and state != RUNNING:
+                    ctrl = (control.init(params, meas, duty) if ctrl is None
+                            else control.resume(params, ctrl, meas, duty))
+                    state, stale = RUNNING, False
+
+                # 4. law or safe duty
+                if state == RUNNING:
+                    ctrl, cmd = control.step(params, ctrl, np.array([ref]), np.array([meas]), period,
+                                             np.array([ref_ff]))
+                    duty, ff, fb = float(cmd.duty_pct[0]), float(cmd.ff_pct[0]), float(cmd.fb_pct[0])
+                    if not math.isfinite(duty):  # never command what the law could not compute
+                        faults.add("bad_command", t)
+                        state, ctrl = FAULT, None
+                if state != RUNNING:
+                    duty, ff, fb = safe, safe, 0.0
+
+                # 5. outputs
+                transport.command(duty, t)
+                err = ref - meas
+                if state == RUNNING:
+                    transport.publish_error(t, err)
+                if steps % status_every == 0:
+                    i0 = max(0, cols.n - status_every)
+                    transport.publish_status(t, {
+                        "state": STATES[state],
+                        "steps": steps,
+                        "overruns": overruns,
+                        "lateness_us_max": float(cols.a["lateness_s"][i0:cols.n].max(initial=0.0)) * 1e6,
+                        "compute_us_max": float(cols.a["compute_s"][i0:cols.n].max(initial=0.0)) * 1e6,
+                        "faults": faults.counts(),
+                    })
+                i = cols.n
+                if i == len(cols.state):
+                    cols.grow()
+                a = cols.a
+                age_ms = meas_dog.age(t) * 1e3
+                a["t_s"][i], a["ref_lpm"][i], a["flow_lpm"][i] = t, ref, meas
+                a["duty_pct"][i], a["ff_duty_pct"][i], a["fb_duty_pct"][i] = duty, ff, fb
+                a["meas_age_ms"][i], a["lateness_s"][i] = age_ms, now - deadline
+                cols.state[i] = state
+                cols.n = i + 1
+                if writer is not None:
+                    writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], age_ms))
+                a["compute_s"][i] = pc() - c0
+                steps += 1
+
+                if (n_steps is not None and steps >= n_steps) or (stop is not None and stop()):
+                    break
+                deadline += period
+                behind = clock.now() - deadline
+                if behind > 0:  # skip the deadlines already missed
+                    missed = int(behind / period) + 1
+                    deadline += missed * period
+                    overruns += missed
+                    if n_steps is not None:
+                        n_steps -= missed
+                        if steps >= n_steps:
+                            break
+        finally:
+            if gc_was_enabled:
+                gc.enable()
+            gc.unfreeze()
+        return LoopResult(cols.trimmed(), faults, steps, overruns, cfg)

@@ -1,0 +1,45 @@
+"""The in-process simulated valve: the loop steps a :class:`plant_sim.plant.Plant` directly.
+
+Each command steps the plant one period; the flow it measures is the loop's
+measurement at the next step, one period later, as a sensor read at the
+start of the period would be. The plant's rate is the loop's rate.
+"""
+from __future__ import annotations
+
+
+class SimTransport:
+    """Loop transport around one simulated valve.
+
+    Parameters
+    ----------
+    plant : plant_sim.plant.Plant
+        Stepped at the loop rate.
+    duty0_pct : float
+        Duty the valve rests at before the loop starts (0 = closed).
+    """
+
+    def __init__(self, plant, duty0_pct: float = 0.0):
+        self.plant = plant
+        self.state = plant.init(duty0_pct)
+        self.state, out = plant.step(self.state, duty0_pct)
+        self._meas = out.flow_lpm
+        self.last = out
+
+    def poll_measurement(self, accept) -> tuple[float | None, int]:
+        v, self._meas = self._meas, None
+        if v is None:
+            return None, 0
+        return (v, 0) if accept(v) else (None, 1)
+
+    def command(self, duty_pct: float, t_s: float) -> None:
+        self.state, self.last = self.plant.step(self.state, duty_pct)
+        self._meas = self.last.flow_lpm
+
+    def publish_error(self, t_s: float, error_lpm: float) -> None:
+        """Nothing listens in-process: the loop records the error."""
+
+    def publish_status(self, t_s: float, status: dict) -> None:
+        """Nothing listens in-process."""
+
+    def close(self) -> None:
+        """Nothing to release."""

@@ -1,0 +1,167 @@
+"""The fixed-rate loop against the in-process simulated valve, on a simulated clock."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from controller.config import controller_params, load_run_config
+from controller.loop import RECORD_COLUMNS, Loop, LoopSettings, ProfileReference, SimClock
+from controller.run_summary import steady_mask, summary, tracking
+from controller.transport.sim import SimTransport
+from controller.watchdog import RUNNING, SAFE
+from models.model import load_model
+from models.recording import RecordingWriter, read_recording
+
+RATE = 1000.0
+SETTINGS = LoopSettings(rate_hz=RATE)
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_run_config("config/run.toml")
+
+
+@pytest.fixture(scope="module")
+def model(cfg):
+    return load_model(cfg.resolve(cfg[""]["model"]))
+
+
+def sim_plant(cfg, seed=0, **effects):
+    from plant_sim.plant import Plant, load_plant
+
+    pp = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects={**cfg["effects"], **effects})
+    return Plant(pp, RATE, seed=seed)
+
+
+def square(t, peak=60.0, period_s=1.0):
+    return peak if (t % period_s) < period_s / 2 else 20.0
+
+
+class Dropout(SimTransport):
+    """The simulated valve, with measurements lost in a time window or replaced by bad values."""
+
+    def __init__(self, plant, gap=(None, None), bad_at=()):
+        super().__init__(plant)
+        self.gap, self.bad_at, self.t = gap, dict(bad_at), 0.0
+
+    def poll_measurement(self, accept):
+        v, n = super().poll_measurement(accept)
+        step = int(round(self.t * RATE))
+        if self.gap[0] is not None and self.gap[0] <= self.t < self.gap[1]:
+            return None, 0
+        if step in self.bad_at:
+            bad = self.bad_at[step]
+            return (None, 1) if not accept(bad) else (bad, 0)
+        return v, n
+
+    def command(self, duty_pct, t_s):
+        self.t = t_s + 1.0 / RATE
+        super().command(duty_pct, t_s)
+
+
+def run(cfg, model, word="ff+kf", transport=None, ref=square, duration=2.0, settings=SETTINGS, writer=None,
+        clock=None):
+    params = controller_params(cfg, word, model)
+    transport = transport or SimTransport(sim_plant(cfg))
+    loop = Loop(params, transport, ProfileReference(ref), settings, clock=clock or SimClock(), writer=writer)
+    return loop.run(duration)
+
+
+def test_closed_loop_tracks_in_steady_state(cfg, model):
+    res = run(cfg, model)
+    c = res.columns
+    assert res.steps == 2000 and res.overruns == 0
+    assert np.all(c["state"][1:] == RUNNING)
+    tr = tracking(c["t_s"], c["ref_lpm"], c["flow_lpm"], c["state"] == RUNNING)
+    assert tr["steady_mae_lpm"] <= 1.0
+
+
+def test_stale_measurements_put_the_loop_in_the_safe_state_and_it_resumes(cfg, model):
+    stale_ms = SETTINGS.stale_ms
+    res = run(cfg, model, transport=Dropout(sim_plant(cfg), gap=(0.7, 0.9)))
+    c = res.columns
+    safe = np.flatnonzero(c["state"] == SAFE)
+    first_safe = safe[safe > 10][0]
+    # Safe within stale_ms plus one period of the last fresh measurement, never earlier.
+    assert stale_ms < c["meas_age_ms"][first_safe] <= stale_ms + 1e3 / RATE + 1e-9
+    assert c["meas_age_ms"][first_safe - 1] <= stale_ms
+    gap_rows = c["state"] == SAFE
+    assert np.all(c["duty_pct"][gap_rows] == SETTINGS.safe_duty_pct)
+    # Back to running on the first fresh measurement, from the safe duty within the rate limit.
+    back = np.flatnonzero((c["state"][1:] == RUNNING) & (c["state"][:-1] == SAFE))[-1] + 1
+    assert c["meas_age_ms"][back] == 0.0
+    rate = cfg["limits"]["rate_pct_per_s"]
+    assert abs(c["duty_pct"][back] - SETTINGS.safe_duty_pct) <= rate / RATE + 1e-9
+    faults = {f["kind"]: f for f in res.faults.to_list()}
+    assert faults["stale"]["count"] == 1
+    assert faults["stale"]["first_s"] == pytest.approx(c["t_s"][first_safe])
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e6, -300.0])
+def test_bad_measurements_are_counted_and_never_reach_the_command(cfg, model, bad):
+    steps = range(200, 1800, 97)
+    res = run(cfg, model, transport=Dropout(sim_plant(cfg), bad_at={k: bad for k in steps}))
+    c = res.columns
+    assert np.all(np.isfinite(c["duty_pct"])) and np.all(np.isfinite(c["flow_lpm"][1:]))
+    assert res.faults.counts() == {"bad_measurement": len(steps)}
+    assert np.all(c["state"][1:] == RUNNING)  # one lost sample is far from stale
+
+
+def test_bad_references_are_counted_and_the_reference_is_clamped(cfg, model):
+    def ref(t):
+        k = int(round(t * RATE))
+        return {300: math.nan, 400: math.inf, 500: -1e9}.get(k, 230.0 if 1000 <= k < 1100 else 50.0)
+
+    res = run(cfg, model, ref=ref)
+    c = res.columns
+    assert res.faults.counts() == {"bad_reference": 3}
+    assert np.all(np.isfinite(c["duty_pct"]))
+    assert c["ref_lpm"].max() == SETTINGS.flow_max_lpm  # 230 clamped to the valve's range
+    assert c["ref_lpm"][300] == 50.0  # the last good reference held
+
+
+class LateClock(SimClock):
+    """A simulated clock whose step at ``late_at`` takes ``periods`` periods of compute."""
+
+    def __init__(self, late_at, periods):
+        super().__init__()
+        self.late_at, self.periods, self.calls = late_at, periods, 0
+
+    def now(self):
+        self.calls += 1
+        if self.calls == 2 * self.late_at:  # the call after step late_at's compute
+            self.t += self.periods / RATE
+        return self.t
+
+
+def test_missed_deadlines_are_skipped_and_counted(cfg, model):
+    res = run(cfg, model, duration=0.5, clock=LateClock(100, 3.5))
+    assert res.overruns == 3
+    assert res.steps + res.overruns == 500
+    assert np.all(np.diff(res.columns["t_s"]) > 0)
+
+
+def test_record_is_a_recording_with_one_row_per_step_and_summary_has_the_design_keys(cfg, model, tmp_path):
+    path = tmp_path / "run.csv"
+    with RecordingWriter(path, RECORD_COLUMNS) as w:
+        res = run(cfg, model, word="ff+pid", duration=0.5, writer=w)
+    rec = read_recording(path)
+    assert len(rec) == res.steps
+    header = path.read_text().splitlines()[0].split(",")
+    assert header[:7] == ["t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state"]
+    s = json.loads(json.dumps(summary(res, "ff+pid", "sim")))
+    assert set(s) == {"controller", "plant", "rate_hz", "steps", "overruns", "lateness_us", "compute_us",
+                      "tracking", "faults"}
+    assert set(s["lateness_us"]) == set(s["compute_us"]) == {"p50", "p99", "max"}
+    assert set(s["tracking"]) == {"mae_lpm", "rmse_lpm", "iae", "steady_mae_lpm"}
+
+
+def test_steady_mask_needs_100_ms_of_constant_reference():
+    t = np.arange(0, 0.5, 0.001)
+    ref = np.where(t < 0.2, 10.0, 30.0)
+    m = steady_mask(t, ref)
+    assert not m[: 100].any() and m[100:200].all()
+    assert not m[200:300].any() and m[300:].all()
