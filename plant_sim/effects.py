@@ -91,7 +91,11 @@ def parse_effect(text: str, source: str = "--effect") -> tuple[str, float]:
         v = float(value)
     except ValueError:
         raise InputError(f"{source} {text}: value {value.strip()!r} is not a number") from None
-    return name, check_effect(name, v, source)
+    try:
+        return name, check_effect(name, v)
+    except InputError:
+        lo, hi = EFFECTS[name].limits
+        raise InputError(f"{source} {text}: outside {lo:g}..{hi:g} {EFFECTS[name].unit}") from None
 
 
 def check_effect(name: str, value: float, source: str = "effect") -> float:
