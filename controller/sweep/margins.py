@@ -124,8 +124,12 @@ def plant_tf(op: OperatingPoint):
     return g
 
 
-def controller_lti(p: control.ControllerParams, j: int, op: OperatingPoint):
-    """Candidate ``j``'s feedback, measured flow -> duty with the sign of negative feedback; None for ``ff``."""
+def controller_lti(p: control.ControllerParams, j: int, op: OperatingPoint, k_model: float | None = None):
+    """Candidate ``j``'s feedback, measured flow -> duty with the sign of negative feedback; None for ``ff``.
+
+    ``k_model``: the forward model's slope at the operating flow (``ff+kf``;
+    computed by :func:`model_gain` when not given).
+    """
     import control as ct
 
     dt = op.dt_s
@@ -138,7 +142,9 @@ def controller_lti(p: control.ControllerParams, j: int, op: OperatingPoint):
             c = c + ct.tf([kd, -kd], [tf + dt, -tf], dt)
         return c
     if p.mode == "ff+kf":
-        return _kalman_lti(p.kf, j, model_gain(p.forward, j, op.flow_lpm), dt)
+        if k_model is None:
+            k_model = model_gain(p.forward, j, op.flow_lpm)
+        return _kalman_lti(p.kf, j, k_model, dt)
     return None
 
 
@@ -178,13 +184,13 @@ class Margins:
     phase_margin_deg: float
 
 
-def loop_margins(p: control.ControllerParams, j: int, op: OperatingPoint) -> Margins:
-    """Margins of candidate ``j`` of ``p`` around the valve linearized at ``op``."""
+def loop_margins(p: control.ControllerParams, j: int, op: OperatingPoint, k_model: float | None = None) -> Margins:
+    """Margins of candidate ``j`` of ``p`` around the valve linearized at ``op`` (``k_model``: see :func:`controller_lti`)."""
     import warnings
 
     import control as ct
 
-    c = controller_lti(p, j, op)
+    c = controller_lti(p, j, op, k_model)
     if c is None:
         return Margins(math.inf, math.inf)
     loop = ct.series(c, plant_tf(op)) if isinstance(c, ct.StateSpace) else c * plant_tf(op)

@@ -1,0 +1,60 @@
+"""A controller tuning sweep: every candidate in closed loop on the simulated valve and its variants, ranked."""
+from __future__ import annotations
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--config", default="config/sweep.toml", metavar="SWEEP.toml",
+                   help="sweep file (default %(default)s)")
+    p.add_argument("-o", "--output", required=True, metavar="SWEEP.csv", help="one row per candidate")
+    p.add_argument("--json", default=None, metavar="S.json",
+                   help='summary {"candidates","seconds","default":{"params",..},"best":{..}}')
+    p.add_argument("--plot", default=None, metavar="P.png", help="Pareto front (IAE against duty TV) and heatmap")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler (e.g. tcp://host:8786); default: a local process pool")
+    p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: one per core)")
+    p.add_argument("--best-config", default=None, metavar="BEST.toml",
+                   help="the best candidate as a run configuration for `valvectl run --config`")
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from models.model import write_json_atomic
+    from models.recording import InputError
+
+    from controller.sweep import runner
+    from controller.sweep.spec import apply, load_sweep, write_run_config
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers: must be positive, got {args.workers}")
+    s = load_sweep(args.config)
+    r = runner.run_sweep(s, args.scheduler, args.workers)
+    runner.write_csv(r, args.output)
+    summ = runner.summary(r)
+    if args.json:
+        write_json_atomic(args.json, summ)
+    if args.best_config:
+        best = s.candidates
+        cfg = apply(s.run, best.controller[r.best], best.row(r.best))
+        write_run_config(cfg, args.best_config, duration_s=s.duration_s)
+    if args.plot:
+        from controller.sweep.plot import heatmap_response, sweep_plot
+
+        heat = None
+        if s.heatmap:
+            x, y = (np.array([np.nan if v is None else v for v in r.table[h]], dtype=float) for h in s.heatmap)
+            heat = heatmap_response(x, y, r.table[s.objective], *s.heatmap)
+        sweep_plot(r.table, args.plot, s.objective, heat=heat, default_index=r.default, best_index=r.best,
+                   title=f"{summ['candidates']} candidates x {summ['variants']} plant variants")
+    d, b = summ["default"], summ["best"]
+
+    def f(v):
+        return "-" if v is None else f"{v:.4f}"
+
+    print(f"{summ['candidates']} candidates x {summ['variants']} variants in {summ['seconds']:.1f} s "
+          f"({summ['candidates'] / summ['seconds']:.0f} candidates/s) -> {args.output}")
+    print(f"default {d['params']['controller']}: {s.objective} {f(d[s.objective])} L, iae {f(d['iae'])} L")
+    print(f"best    {b['params']['controller']}: {s.objective} {f(b[s.objective])} L, iae {f(b['iae'])} L  "
+          + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in b["params"].items()
+                     if k != "controller"))
+    return 0

@@ -1,0 +1,227 @@
+"""Run a sweep: group and chunk the candidates, simulate the chunks where asked, rank, and write the results.
+
+Candidates are grouped by what one batch must share (controller word,
+feedforward model, preview) and cut into chunks of at most ``chunk_loops``
+loops (candidates x plant variants); each chunk builds its candidates'
+controllers with the run's own builder
+(:func:`controller.config.controller_params`, one candidate at a time,
+then joined into one batch) and simulates them with
+:mod:`controller.sweep.simulate`.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import metrics, simulate, spec as sp
+from .distributed import map_chunks
+
+MARGIN_NAMES = ("gain_margin_db", "phase_margin_deg")
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """One batch of candidates of one structure, picklable for a process pool or a Dask worker.
+
+    ``params``: each candidate's ControllerParams (batch of one), joined and
+    repeated over the plant variants by the worker.
+    """
+
+    params: list
+    plants: list
+    ref_lpm: np.ndarray
+    rate_hz: float
+    preview_steps: int
+    seed: int
+
+
+def build_one(run, word: str, row: dict, models: dict):
+    """Candidate's ControllerParams (batch of one) by the run's builder, and its preview in seconds."""
+    from controller.config import controller_params, preview_s
+
+    cfg = sp.apply(run, word, row)
+    return controller_params(cfg, word, models[cfg.resolve(cfg[""]["model"])]), preview_s(cfg, "profile")
+
+
+def structure(x):
+    """What must agree for candidates to share a batch: words, flags, present parts, array widths."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(x):
+        return tuple((f.name, structure(getattr(x, f.name))) for f in dataclasses.fields(x))
+    if isinstance(x, np.ndarray):
+        return (x.dtype.str, x.shape[1:])
+    return x if x is None or isinstance(x, (str, bool, int)) else type(x).__name__
+
+
+def simulate_chunk(c: Chunk) -> dict:
+    """Figures of the chunk's candidates, arrays (C, V)."""
+    V = len(c.plants)
+    params = simulate.stack_params([p for p in c.params for _ in range(V)])
+    r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, c.preview_steps)
+    return simulate.figures(r, V)
+
+
+@dataclass
+class SweepResult:
+    """The table and what the summary needs."""
+
+    spec: sp.SweepSpec
+    table: dict  # column -> list (parameters, figures, worst case, margins)
+    columns: list
+    seconds: float
+    best: int
+    default: int = 0
+
+
+def load_models(s: sp.SweepSpec) -> dict:
+    """Every feedforward model file the candidates name, loaded once: resolved path -> FittedModel."""
+    from models.model import load_model
+    from models.recording import InputError
+
+    models = {}
+    for i in range(len(s.candidates)):
+        cfg = sp.apply(s.run, s.candidates.controller[i], s.candidates.row(i))
+        path = cfg.resolve(cfg[""]["model"])
+        if path not in models:
+            try:
+                models[path] = load_model(path)
+            except InputError as exc:
+                raise InputError(f"{s.path}: candidate {i} model: {exc}") from None
+    return models
+
+
+def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict):
+    """``(chunks, candidate indices per chunk)``: candidates grouped by structure and preview."""
+    run, cands = s.run, s.candidates
+    rate = run["loop"]["rate_hz"]
+    groups, built = {}, []
+    for i in range(len(cands)):
+        p, preview = build_one(run, cands.controller[i], cands.row(i), models)
+        built.append(p)
+        groups.setdefault((structure(p), int(round(preview * rate))), []).append(i)
+    per = max(1, s.chunk_loops // len(plants))
+    chunks, index = [], []
+    for (_, preview), idx in groups.items():
+        for a in range(0, len(idx), per):
+            part = idx[a:a + per]
+            chunks.append(Chunk([built[i] for i in part], plants, ref, rate, preview, run[""]["seed"]))
+            index.append(part)
+    return chunks, index
+
+
+def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None = None) -> SweepResult:
+    """Simulate every candidate on every variant, rank, and compute the top candidates' margins."""
+    t0 = time.perf_counter()
+    plants = sp.plants(s.run, s.variants, s.path)
+    ref = sp.reference(s.run, s.duration_s)
+    models = load_models(s)
+    chunks, index = chunks_of(s, plants, ref, models)
+    results = map_chunks(simulate_chunk, chunks, [len(i) for i in index], scheduler, workers)
+    n, V = len(s.candidates), len(plants)
+    fig = {k: np.full((n, V), np.nan) for k in metrics.NAMES}
+    for idx, res in zip(index, results):
+        for k in metrics.NAMES:
+            fig[k][idx] = res[k]
+    table, columns = _parameter_columns(s)
+    for k in metrics.NAMES:
+        table[k] = fig[k][:, 0]
+        columns.append(k)
+    if V > 1:
+        for k, v in metrics.worst_case(fig).items():
+            table[f"worst_{k}"] = v
+            columns.append(f"worst_{k}")
+    obj = np.asarray(table[s.objective], dtype=np.float64)
+    best = int(np.nanargmin(np.where(np.isfinite(obj), obj, np.nan))) if np.isfinite(obj).any() else 0
+    if s.margins_top:
+        table.update(_margins(s, plants[0], ref, models, np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]))
+        columns += list(MARGIN_NAMES)
+    return SweepResult(s, table, columns, time.perf_counter() - t0, best)
+
+
+def _parameter_columns(s: sp.SweepSpec):
+    cands = s.candidates
+    names = list(cands.settings)
+    eff = [sp.effective(s.run, cands.controller[i], cands.row(i), names) for i in range(len(cands))]
+    table = {"controller": list(cands.controller)}
+    for nm in names:
+        table[nm] = [e[nm] for e in eff]
+    return table, ["controller", *names]
+
+
+def _margins(s: sp.SweepSpec, plant, ref, models: dict, top) -> dict:
+    from . import margins as mg
+
+    run = s.run
+    flow = s.margins_flow_lpm if s.margins_flow_lpm is not None else float(np.max(ref))
+    op = mg.operating_point(plant, flow, run["loop"]["rate_hz"])
+    out = {k: [None] * len(s.candidates) for k in MARGIN_NAMES}
+    k_model = {}
+    for i in top:
+        word, row = s.candidates.controller[i], s.candidates.row(i)
+        cfg = sp.apply(run, word, row)
+        path = cfg.resolve(cfg[""]["model"])
+        p, _ = build_one(run, word, row, models)
+        if word == "ff+kf" and path not in k_model:
+            k_model[path] = mg.model_gain(p.forward, 0, flow)
+        m = mg.loop_margins(p, 0, op, k_model.get(path))
+        out["gain_margin_db"][i], out["phase_margin_deg"][i] = m.gain_margin_db, m.phase_margin_deg
+    return out
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, str):
+        return v
+    v = float(v)
+    if math.isnan(v):
+        return ""
+    return repr(v) if math.isinf(v) else format(v, ".6g")
+
+
+def write_csv(r: SweepResult, path: str) -> None:
+    """SWEEP.csv: one row per candidate, parameters then figures (DESIGN.md), written atomically."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(r.columns)
+        for i in range(len(r.table["controller"])):
+            w.writerow([_cell(r.table[c][i]) for c in r.columns])
+    os.replace(tmp, path)
+
+
+def _json_number(v):
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def figure_columns(r: SweepResult) -> list:
+    """The columns after the parameters: figures, worst case, margins."""
+    return [c for c in r.columns if c in metrics.NAMES or c.startswith("worst_") or c in MARGIN_NAMES]
+
+
+def candidate_summary(r: SweepResult, i: int) -> dict:
+    """``{"params": {...}, "iae", ...}`` of candidate ``i`` (settings that do not apply and non-finite figures: left out / null)."""
+    figs = figure_columns(r)
+    params = {c: r.table[c][i] for c in r.columns if c not in figs and r.table[c][i] is not None}
+    return {"params": params, **{c: _json_number(r.table[c][i]) for c in figs}}
+
+
+def summary(r: SweepResult) -> dict:
+    """S.json of DESIGN.md: ``{"candidates", "seconds", "default", "best"}`` plus the objective and variants."""
+    return {
+        "candidates": len(r.table["controller"]),
+        "seconds": r.seconds,
+        "objective": r.spec.objective,
+        "variants": len(r.spec.variants),
+        "default": candidate_summary(r, r.default),
+        "best": candidate_summary(r, r.best),
+    }
