@@ -14,8 +14,10 @@ reversal curve, until the input passes ``P`` again,
 ``F(x, R) = (y(x) - y(R)) / 2`` on an ascending curve from a minimum ``R``.
 
 These first-order reversal curves (FORCs) are read from every reversal of the
-(preprocessed) recording; with the paper's protocol of growing sinusoids they
-are vertical and horizontal lines of the alpha-beta plane. Their values are
+(preprocessed) recording, against its memory staircase (so a curve continues
+past small loops it wipes out, see :func:`reversal_curves`); with the paper's
+protocol of growing sinusoids they are vertical and horizontal lines of the
+alpha-beta plane. Their values are
 interpolated onto the regular alpha-beta mesh (``scipy.interpolate.griddata``,
 linear inside the data, nearest outside), with ``F = 0`` on and below the
 diagonal; the offset is then fitted by least squares.
@@ -130,7 +132,7 @@ def _run(E, x, state):
 def relaxed_state(x0: float, n_mesh: int = N_MESH) -> np.ndarray:
     """Staircase of an input relaxed at ``x0``: extrema ``x0 +- k h`` closing on ``x0``, then rising."""
     h = 2.0 / n_mesh
-    k = np.arange(int(np.ceil((1.0 + abs(x0)) / h)), 0, -1)
+    k = np.arange(int((1.0 + abs(x0)) / h) + 1, 0, -1)  # the outermost pair lies beyond [-1, 1]
     ext = np.empty(2 * len(k))
     ext[0::2] = x0 + k * h
     ext[1::2] = x0 - k * h
@@ -207,34 +209,46 @@ class ReversalCurves:
     reversals: int
 
 
-def reversal_curves(x: np.ndarray, y: np.ndarray) -> ReversalCurves:
-    """Everett samples from every reversal curve, each kept until it passes its previous extremum."""
+def reversal_curves(x: np.ndarray, y: np.ndarray, n_mesh: int = N_MESH) -> ReversalCurves:
+    """Everett samples from every reversal curve of a recording.
+
+    At a maximum ``R`` every relay with ``alpha <= R`` is up, so the falling
+    curve from ``R`` reads ``F(R, x)`` until the input passes the extremum ``P``
+    below it in the memory staircase (beyond ``P``, relays switched up by an
+    earlier, larger maximum switch too); likewise for rising curves. The
+    samples are read against the recording's own staircase, with wiping-out:
+    once the input passes ``P``, both are erased and the curve is read against
+    the reversal before them. The recording is taken to start relaxed at
+    ``x[0]``, as the models do (:func:`relaxed_state`), which bounds the
+    first curves; those staircase corners have no measured output, so only
+    curves from a measured reversal are read.
+    """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    dx = np.diff(x)
-    moving = np.flatnonzero(dx != 0)
-    sign = np.sign(dx[moving])
-    turns = moving[1:][sign[1:] != sign[:-1]]  # index into dx where the direction changed
-    rev = turns  # sample index of each reversal point (the extremum)
+    s0 = relaxed_state(float(x[0]), n_mesh)
+    # Below the staircase, a pair no input passes: the bound of curves that wiped out everything.
+    ext_x = [np.inf, -np.inf] + list(s0[_HEAD:_HEAD + int(s0[2])])
+    ext_y = [np.nan] * len(ext_x)
     a, b, f = [], [], []
-    for q in range(1, len(rev)):
-        r, p = rev[q], rev[q - 1]
-        end = rev[q + 1] if q + 1 < len(rev) else len(x) - 1
-        seg = slice(r, end + 1)
-        xs, ys = x[seg], y[seg]
-        if x[r] > x[p]:  # descending from the maximum x[r]; valid while x >= previous min x[p]
-            keep = xs >= x[p]
-            a.append(np.full(keep.sum(), x[r]))
-            b.append(xs[keep])
-            f.append(0.5 * (y[r] - ys[keep]))
-        else:  # ascending from the minimum x[r]; valid while x <= previous max x[p]
-            keep = xs <= x[p]
-            a.append(xs[keep])
-            b.append(np.full(keep.sum(), x[r]))
-            f.append(0.5 * (ys[keep] - y[r]))
-    if not a:
-        return ReversalCurves(np.empty(0), np.empty(0), np.empty(0), 0)
-    return ReversalCurves(np.concatenate(a), np.concatenate(b), np.concatenate(f), len(rev) - 1)
+    direction = s0[1]
+    curves = 0
+    for k in range(1, len(x)):
+        if x[k] == x[k - 1]:
+            continue
+        d = 1.0 if x[k] > x[k - 1] else -1.0
+        if d != direction:
+            ext_x.append(x[k - 1])
+            ext_y.append(y[k - 1])
+            curves += 1
+        direction = d
+        while len(ext_x) >= 2 and (x[k] - ext_x[-2]) * d >= 0:
+            del ext_x[-2:], ext_y[-2:]  # wiping-out
+        if len(ext_x) >= 2 and not np.isnan(ext_y[-1]):
+            if d > 0:  # ascending from the minimum ext_x[-1]
+                a.append(x[k]), b.append(ext_x[-1]), f.append(0.5 * (y[k] - ext_y[-1]))
+            else:  # descending from the maximum ext_x[-1]
+                a.append(ext_x[-1]), b.append(x[k]), f.append(0.5 * (ext_y[-1] - y[k]))
+    return ReversalCurves(np.array(a), np.array(b), np.array(f), curves)
 
 
 def everett_mesh(curves: ReversalCurves, n_mesh: int = N_MESH) -> np.ndarray:
@@ -271,9 +285,9 @@ def fit_preisach_cont(x: np.ndarray, y: np.ndarray, n_mesh: int = N_MESH) -> Con
     """
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    curves = reversal_curves(x, y)
-    if curves.reversals == 0:
-        raise ValueError("no reversal curve in the recording: the input never turns")
+    curves = reversal_curves(x, y, n_mesh)
+    if len(curves.everett) < 3:
+        raise ValueError("too few reversal curves in the recording: the input must turn at least twice")
     E = everett_mesh(curves, n_mesh)
     model = ContinuousPreisachModel(everett=E, offset=0.0)
     pred, _ = model.predict(x)

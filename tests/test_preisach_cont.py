@@ -54,7 +54,7 @@ def test_reversal_curves_read_the_everett_function_back():
     x = (growing_sine(3000) - 55) / 17
     x /= np.max(np.abs(x))
     y, _ = m.predict(x)
-    cv = reversal_curves(x, y)
+    cv = reversal_curves(x, y, m.n_mesh)
     assert cv.reversals > 10
     truth = np.array([_everett(m.everett, a, b) for a, b in zip(cv.alpha, cv.beta)])
     np.testing.assert_allclose(cv.everett, truth, atol=1e-10)
