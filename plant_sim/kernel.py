@@ -9,7 +9,12 @@ implementation. Per plant ``b`` and step ``k`` with commanded duty ``d``
 2. forward PI, Eq. (1)-(4): the normalized duty, clamped to the identified range
    [-1, 1] (the plunger is seated below it and fully open above it), drives the
    play operators; with ``asymmetric_hysteresis = a`` the descending threshold
-   of each operator is ``r_i (1 + a s)``, ``s = (u + 1)/2`` (``a = 0`` is Eq. 1);
+   of every operator grows by ``a s h``, ``s = (u + 1)/2`` the position in the
+   range and ``h = sum(w r)/sum(w)`` the model's mean operator half-width, so
+   the descending branch is ``1 + a`` times as wide at full flow (``a = 0``
+   is Eq. 1). One lift for all operators keeps the descending flow above the
+   symmetric model's: the operators that move on a descent are those of the
+   smallest thresholds, and their weights sum to a loading slope > 0 (Kuhnen);
    below the identified range the flow closes along the model's mean gain;
 3. creep: plus a state relaxing towards ``creep`` times the last
    reversal-to-reversal flow step;
@@ -175,7 +180,7 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
     d_eff = np.empty(B)
     u = np.empty(B)
     uc = np.empty(B)
-    widen = np.empty(B)
+    lift = np.empty(B)
     acc = np.empty(B)
     temp = np.empty(B)
     for n in range(N):
@@ -192,7 +197,7 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
                 x_out[b, S_TEMP] = drive + (temp[b] - drive) * P[b, E_TH]
             u[b] = (d_eff[b] - P[b, XC]) / P[b, XH]
             uc[b] = min(max(u[b], -1.0), 1.0)
-            widen[b] = 1.0 + P[b, ASYM] * (uc[b] + 1.0) * 0.5
+            lift[b] = P[b, ASYM] * (uc[b] + 1.0) * 0.5
             acc[b] = 0.0
 
         # 2. forward PI, Eq. (1)-(4), on the identified input range
@@ -200,7 +205,7 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
             for b in range(B):
                 j = b if per_plant else 0
                 lo = uc[b] - R[i, j]               # Eq. (1), ascending side
-                hi = uc[b] + R[i, j] * widen[b]    # Eq. (1), descending side (widened)
+                hi = uc[b] + R[i, j] + lift[b]     # Eq. (1), descending side (widened)
                 yi = min(max(play[i, b], lo), hi)
                 play_out[i, b] = yi
                 acc[b] += W[i, j] * yi

@@ -210,7 +210,8 @@ def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     v[K.XC], v[K.XH], v[K.YC], v[K.YH] = xs.center, xs.half_range, ys.center, ys.half_range
     v[K.OFF] = p.model.core.offset
     v[K.GAIN_LO] = ys.half_range / xs.half_range
-    v[K.ASYM] = p.asymmetric_hysteresis
+    core = p.model.core
+    v[K.ASYM] = p.asymmetric_hysteresis * float(core.w @ core.r / np.sum(core.w))  # a times the mean half-width
     v[K.HEAT_K], v[K.E_TH], v[K.T_AMB], v[K.ALPHA] = (
         p.coil_heating, math.exp(-dt / p.coil_tau_s), p.ambient_c, p.coil_alpha_per_k)
     e_w = math.exp(-dt / p.wander_tau_s)
