@@ -21,7 +21,7 @@ SCHEMA: dict[str, dict] = {
     "": {"controller": "ff+kf", "plant": "sim", "reference": "profile", "duration_s": 20.0,
          "model": "valve_model.json", "plant_config": "plant.toml", "seed": 0},
     "loop": {"rate_hz": 1000.0, "stale_ms": 50.0, "ref_stale_ms": 500.0, "safe_duty_pct": 0.0,
-             "flow_max_lpm": 200.0, "status_hz": 10.0, "spin_us": 300.0},
+             "flow_max_lpm": 200.0, "status_hz": 10.0, "spin_us": 300.0, "rt_priority": 0},
     "limits": {"duty_min_pct": 0.0, "duty_max_pct": 100.0, "rate_pct_per_s": 10000.0},
     "profile": {},  # keyword arguments of plant_sim.protocols.BreathProfile
     "valve": {"tau_s": 0.0, "delay_s": 0.0},
@@ -55,7 +55,7 @@ class RunConfig:
         lp = self["loop"]
         return LoopSettings(rate_hz=lp["rate_hz"], stale_ms=lp["stale_ms"], ref_stale_ms=lp["ref_stale_ms"],
                             safe_duty_pct=lp["safe_duty_pct"], flow_max_lpm=lp["flow_max_lpm"],
-                            status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6)
+                            status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"])
 
 
 def _check(path: str, name: str, value, default):

@@ -27,8 +27,11 @@ The clock is injectable: :class:`RealClock` for the live loop,
 """
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
+import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -63,6 +66,11 @@ class LoopSettings:
         Rate of ``ctrl/status``, Hz.
     spin_s : float
         Spin margin before each deadline, s.
+    rt_priority : int
+        ``SCHED_FIFO`` priority of the loop thread while it runs (1-99), so
+        that other processes on the machine cannot delay its wake-ups; 0 keeps
+        the normal scheduler. Without the permission (root or CAP_SYS_NICE)
+        the loop runs with the normal scheduler and says so on stderr.
     """
 
     rate_hz: float = 1000.0
@@ -73,6 +81,26 @@ class LoopSettings:
     sensor_range_lpm: tuple[float, float] = (-250.0, 250.0)
     status_hz: float = 10.0
     spin_s: float = 300e-6
+    rt_priority: int = 0
+
+
+@contextlib.contextmanager
+def realtime(priority: int):
+    """Run the calling thread under ``SCHED_FIFO`` at ``priority`` (0: unchanged) and restore it after."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        yield False
+        return
+    old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        sys.stderr.write("loop: no permission for SCHED_FIFO; running with the normal scheduler\n")
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.sched_setscheduler(0, old_policy, old_param)
 
 
 class RealClock:
@@ -235,6 +263,8 @@ class Loop:
         gc.freeze()
         gc_was_enabled = gc.isenabled()
         gc.disable()
+        rt = realtime(cfg.rt_priority if isinstance(clock, RealClock) else 0)
+        rt.__enter__()
         t0 = clock.now()
         deadline = t0
         try:
@@ -331,6 +361,7 @@ class Loop:
                         if steps >= n_steps:
                             break
         finally:
+            rt.__exit__(None, None, None)
             if gc_was_enabled:
                 gc.enable()
             gc.unfreeze()

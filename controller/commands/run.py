@@ -20,6 +20,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    import signal
+
     from models.model import load_model, write_json_atomic
     from models.recording import InputError, RecordingWriter
 
@@ -73,8 +75,12 @@ def run(args) -> int:
     loop = Loop(params, transport, reference, settings, writer=writer)
     if sys.stderr.isatty():
         sys.stderr.write(f"running {word} on {plant_label} for {duration:g} s...\n")
+    # SIGTERM or Ctrl-C end the run at the next step, with its summary.
+    stopping: list[bool] = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stopping.append(True))
     try:
-        result = loop.run(duration if duration > 0 else None)
+        result = loop.run(duration if duration > 0 else None, stop=lambda: bool(stopping))
     finally:
         if writer is not None:
             writer.close()

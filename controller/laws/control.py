@@ -132,7 +132,8 @@ def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm:
         pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, ff, s.duty_pct, p.limits)
     else:  # ff+kf
         kst = kalman.update(p.kf, kst, meas_lpm)
-        u = ffw.step(p.inverse, inv, r - kst.bias_lpm)[1]
+        # A reference of no flow closes the valve whatever the bias estimate says.
+        u = np.where(r > 0.0, ffw.step(p.inverse, inv, r - kst.bias_lpm)[1], ff)
         duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
     fwd, model = ffw.step(p.forward, fwd, duty)
     if kst is not None:

@@ -1,0 +1,44 @@
+"""The simulated valve as a Zenoh node (stand-in for the hardware bridge): cmd/duty in, meas/flow out."""
+from __future__ import annotations
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--config", default="config/run.toml", metavar="RUN.toml",
+                   help="run configuration: [valve_node], [effects], [zenoh] (default %(default)s)")
+    p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--connect", action="append", default=None, metavar="EP",
+                   help="Zenoh endpoint to connect to (repeatable; default: the controller's listen endpoints)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until interrupted)")
+
+
+def run(args) -> int:
+    import signal
+
+    from controller.config import load_run_config
+    from controller.loop import RealClock, realtime
+    from controller.transport.zenoh import ValveNodeTransport, open_session
+    from controller.valve_node import ValveNode
+    from plant_sim.plant import Plant, load_plant
+
+    cfg = load_run_config(args.config)
+    node_cfg = cfg["valve_node"]
+    plant = Plant(load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"]), node_cfg["rate_hz"],
+                  seed=cfg[""]["seed"])
+    stopping = []
+    signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))
+    session = open_session(cfg, args.listen, args.connect, role="valve")
+    transport = ValveNodeTransport(session, cfg["zenoh"]["id"])
+    node = ValveNode(plant, transport, node_cfg["rate_hz"], node_cfg["command_timeout_ms"] * 1e-3,
+                     RealClock(cfg["loop"]["spin_us"] * 1e-6))
+    try:
+        with realtime(cfg["loop"]["rt_priority"]):
+            st = node.run(args.duration, stop=lambda: bool(stopping))
+    except KeyboardInterrupt:
+        st = None
+    finally:
+        transport.close()
+        session.close()
+    if st is not None:
+        print(f"valve-node: {st.steps} steps, {st.overruns} overruns, {st.commands} commands, "
+              f"{st.bad_commands} bad, {st.timeouts} command timeouts")
+    return 0
