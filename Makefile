@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml
 test: setup
 	$(PY) -m pytest -q
 
+# The main job: a 20 s closed-loop run of a breath profile with ff+kf on the embedded simulated
+# valve (valve_dynamics, transport_delay and sensor noise on; config/run.toml).
 run: setup
-	$(VENV)/bin/valvectl compare $(DATA)/bench_identification.csv --validate $(DATA)/bench_validation.csv --json compare.json --plot compare.png
+	$(VENV)/bin/valvectl run --config config/run.toml --json run.json --plot run.png
 
 # The simulated valve's default forward model: the PI fitted on the identification recording.
 model: setup
