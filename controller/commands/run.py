@@ -77,11 +77,12 @@ def run(args) -> int:
         sys.stderr.write(f"running {word} on {plant_label} for {duration:g} s...\n")
     # SIGTERM or Ctrl-C end the run at the next step, with its summary.
     stopping: list[bool] = []
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stopping.append(True))
+    previous = {sig: signal.signal(sig, lambda *_: stopping.append(True)) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         result = loop.run(duration if duration > 0 else None, stop=lambda: bool(stopping))
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         if writer is not None:
             writer.close()
         if session is not None:
