@@ -4,7 +4,8 @@ Keys under ``vent/valve/{id}``: ``ref/flow`` and ``meas/flow`` in,
 ``cmd/duty``, ``ctrl/error`` (every step) and ``ctrl/status`` (10 Hz) out,
 liveliness tokens ``alive/controller`` and ``alive/valve``. Payloads are
 UTF-8 JSON ``{"t": s, "seq": n, "value": x}`` with encoding
-``application/json``.
+``application/json``; ``cmd/duty`` adds ``meas_seq``, the ``seq`` of the
+newest measurement the command was computed from.
 
 The loop thread receives: subscribers hand samples to a
 ``zenoh.handlers.RingChannel`` (the newest samples, never blocking Zenoh's
@@ -63,32 +64,34 @@ def open_session(cfg, listen, connect, role: str):
         raise InputError(f"zenoh: cannot open a session ({exc})") from None
 
 
-def payload(t_s: float, seq: int, value) -> bytes:
-    return json.dumps({"t": t_s, "seq": seq, "value": value}).encode()
+def payload(t_s: float, seq: int, value, **extra) -> bytes:
+    return json.dumps({"t": t_s, "seq": seq, "value": value, **extra}).encode()
 
 
-def parse_value(sample) -> float | None:
-    """The ``value`` of a payload as a float, or None if the payload is malformed."""
+def parse(sample) -> tuple[float | None, int | None]:
+    """``(value, seq)`` of a payload; value None if the payload is malformed (seq None if absent)."""
     try:
         d = json.loads(sample.payload.to_bytes())
         v = d["value"]
     except (ValueError, TypeError, KeyError, UnicodeDecodeError):
-        return None
+        return None, None
+    seq = d.get("seq")
+    seq = seq if isinstance(seq, int) else None
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None
-    return float(v)
+        return None, seq
+    return float(v), seq
 
 
-def drain(sub, accept) -> tuple[float | None, int]:
-    """Newest accepted value among the queued samples, and how many were rejected."""
-    latest, bad = None, 0
+def drain(sub, accept) -> tuple[float | None, int, int | None]:
+    """Newest accepted value among the queued samples, how many were rejected, and its seq."""
+    latest, bad, latest_seq = None, 0, None
     while True:
         s = sub.try_recv()
         if s is None:
-            return latest, bad
-        v = parse_value(s)
+            return latest, bad, latest_seq
+        v, seq = parse(s)
         if v is not None and accept(v):
-            latest = v
+            latest, latest_seq = v, seq
         else:
             bad += 1
 
@@ -98,8 +101,8 @@ class _Publisher:
         self.pub = session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON, **qos)
         self.seq = 0
 
-    def put(self, t_s: float, value) -> None:
-        self.pub.put(payload(t_s, self.seq, value))
+    def put(self, t_s: float, value, **extra) -> None:
+        self.pub.put(payload(t_s, self.seq, value, **extra))
         self.seq += 1
 
     def undeclare(self) -> None:
@@ -116,7 +119,7 @@ class ZenohReference:
         self.sub = sub
 
     def poll(self, t_s: float, accept) -> tuple[float | None, int]:
-        return drain(self.sub, accept)
+        return drain(self.sub, accept)[:2]
 
 
 class ZenohTransport:
@@ -132,15 +135,20 @@ class ZenohTransport:
         self.err = _Publisher(session, f"{k}/ctrl/error", express=True, congestion_control=zenoh.CongestionControl.DROP)
         self.status = _Publisher(session, f"{k}/ctrl/status")
         self.token = session.liveliness().declare_token(f"{k}/alive/controller")
+        self.meas_seq: int | None = None
 
     def reference(self) -> ZenohReference:
         return ZenohReference(self.sub_ref)
 
     def poll_measurement(self, accept) -> tuple[float | None, int]:
-        return drain(self.sub_meas, accept)
+        v, bad, seq = drain(self.sub_meas, accept)
+        if v is not None:
+            self.meas_seq = seq
+        return v, bad
 
     def command(self, duty_pct: float, t_s: float) -> None:
-        self.cmd.put(t_s, duty_pct)
+        # meas_seq: the newest measurement this command was computed from (round-trip timing).
+        self.cmd.put(t_s, duty_pct, meas_seq=self.meas_seq)
 
     def publish_error(self, t_s: float, error_lpm: float) -> None:
         self.err.put(t_s, error_lpm)
@@ -190,7 +198,7 @@ class ValveNodeTransport:
         self.token = session.liveliness().declare_token(f"{k}/alive/valve")
 
     def poll_command(self, accept) -> tuple[float | None, int]:
-        return drain(self.sub_cmd, accept)
+        return drain(self.sub_cmd, accept)[:2]
 
     def publish_flow(self, t_s: float, flow_lpm: float) -> None:
         self.meas.put(t_s, flow_lpm)

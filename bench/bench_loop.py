@@ -1,0 +1,125 @@
+"""Loop timing at 1 kHz: in-process and over Zenoh, and the Zenoh round trip.
+
+Prints, for the live loop of ``valvectl run`` (ff+kf, config/run.toml):
+
+1. in-process simulated valve, 5 s each: lateness (wake - deadline) and
+   compute time per step, for
+   a. the naive baseline: ``time.sleep`` to the absolute deadline, normal scheduler;
+   b. hybrid sleep-then-spin (``spin_us``), normal scheduler;
+   c. hybrid + ``SCHED_FIFO`` (``rt_priority``), the configured default;
+   with p99 lateness as a ratio to the baseline's;
+2. over Zenoh: the controller as its own process (``valvectl run --plant
+   zenoh``) and this process as the valve, publishing ``meas/flow`` at 1 kHz
+   and busy-polling ``cmd/duty``: the controller's lateness and compute
+   (its summary) and the round trip ``meas/flow`` out -> the ``cmd/duty``
+   computed from it back (``meas_seq``), also in loop periods.
+
+The machine is shared (2 cores, other jobs running): figures vary from run to run.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from controller.config import controller_params, load_run_config, preview_s  # noqa: E402
+from controller.loop import Loop, ProfileReference, RealClock  # noqa: E402
+from controller.run_summary import summary  # noqa: E402
+from controller.transport.sim import SimTransport  # noqa: E402
+from models.model import load_model  # noqa: E402
+from plant_sim.plant import Plant, load_plant  # noqa: E402
+from plant_sim.protocols import BreathProfile  # noqa: E402
+
+SECONDS = 5.0
+
+
+def pct(x):
+    return f"p50 {x['p50']:8.1f}  p99 {x['p99']:8.1f}  max {x['max']:8.0f}"
+
+
+def in_process(cfg, model, spin_s: float, rt: int) -> dict:
+    settings = dataclasses.replace(cfg.loop, spin_s=spin_s, rt_priority=rt)
+    pp = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
+    ref = ProfileReference(BreathProfile(**cfg["profile"]).value, preview_s(cfg, "profile"))
+    loop = Loop(controller_params(cfg, "ff+kf", model), SimTransport(Plant(pp, settings.rate_hz)), ref, settings,
+                clock=RealClock(spin_s))
+    return summary(loop.run(SECONDS), "ff+kf", "sim")
+
+
+def zenoh_round_trip(cfg) -> tuple[dict, np.ndarray]:
+    import zenoh
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    out = os.path.join(tempfile.mkdtemp(), "s.json")
+    ctrl = subprocess.Popen([sys.executable, "-m", "controller.cli", "run", "--plant", "zenoh", "--listen", ep,
+                             "--duration", "0", "--json", out], stdout=subprocess.DEVNULL)
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("connect/endpoints", json.dumps([ep]))
+    c.insert_json5("connect/timeout_ms", "-1")
+    sent, rtt = {}, []
+    with zenoh.open(c) as z:
+        meas = z.declare_publisher("vent/valve/insp/meas/flow", encoding=zenoh.Encoding.APPLICATION_JSON,
+                                   priority=zenoh.Priority.REAL_TIME, express=True)
+        cmd = z.declare_subscriber("vent/valve/insp/cmd/duty", zenoh.handlers.RingChannel(1024))
+        pc = time.perf_counter
+        seq, nxt, t_first = 0, pc(), None
+        while True:
+            now = pc()
+            if now >= nxt:
+                sent[seq] = pc()
+                meas.put(json.dumps({"t": now, "seq": seq, "value": 30.0}).encode())
+                seq += 1
+                nxt += 1e-3
+            while (x := cmd.try_recv()) is not None:
+                k = json.loads(x.payload.to_bytes()).get("meas_seq")
+                if k in sent:
+                    rtt.append(pc() - sent.pop(k))
+                    t_first = t_first or pc()
+            if t_first is not None and pc() - t_first > SECONDS:
+                break
+            if t_first is None and now - sent.get(0, now) > 120:
+                raise SystemExit("the controller never answered")
+    ctrl.terminate()
+    ctrl.wait(60)
+    with open(out) as fh:
+        return json.load(fh), np.array(rtt)
+
+
+def main() -> None:
+    cfg = load_run_config("config/run.toml")
+    model = load_model(cfg.resolve(cfg[""]["model"]))
+    spin, rt = cfg.loop.spin_s, cfg.loop.rt_priority
+    print(f"loop at {cfg.loop.rate_hz:g} Hz, ff+kf, {SECONDS:g} s per case; shared 2-core machine, "
+          f"load average {os.getloadavg()[0]:.1f}\n")
+    print("in-process simulated valve               lateness us                          compute us")
+    base = None
+    for name, s_, r_ in (("sleep to deadline (baseline)", 0.0, 0), (f"hybrid, spin {spin*1e6:.0f} us", spin, 0),
+                         (f"hybrid + SCHED_FIFO {rt}", spin, rt)):
+        s = in_process(cfg, model, s_, r_)
+        base = base or s["lateness_us"]["p99"]
+        print(f"  {name:34s} {pct(s['lateness_us'])}   {pct(s['compute_us'])}   overruns {s['overruns']}, "
+              f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline")
+    s, rtt = zenoh_round_trip(cfg)
+    print("\nover Zenoh (controller process, this process as the valve)")
+    print(f"  controller lateness us {pct(s['lateness_us'])}   compute us {pct(s['compute_us'])}   "
+          f"overruns {s['overruns']} of {s['steps'] + s['overruns']}")
+    p50, p99 = np.percentile(rtt, [50, 99]) * 1e6
+    print(f"  round trip meas/flow -> cmd/duty us: p50 {p50:.0f}  p99 {p99:.0f}  max {rtt.max() * 1e6:.0f} "
+          f"({len(rtt)} samples; p50 = {p50 / 1e3:.2f} loop periods)")
+
+
+if __name__ == "__main__":
+    main()
