@@ -165,3 +165,29 @@ def test_steady_mask_needs_100_ms_of_constant_reference():
     m = steady_mask(t, ref)
     assert not m[: 100].any() and m[100:200].all()
     assert not m[200:300].any() and m[300:].all()
+
+
+class SilentAfter:
+    """A received reference (like ``…/ref/flow``) that stops arriving at ``t_end``."""
+
+    can_go_stale = True
+    preview_s = 0.0
+
+    def __init__(self, value, t_end):
+        self.value, self.t_end = value, t_end
+
+    def poll(self, t_s, accept):
+        return (self.value, 0) if t_s < self.t_end else (None, 0)
+
+
+def test_a_reference_that_stops_arriving_drops_to_zero_after_ref_stale_ms(cfg, model):
+    params = controller_params(cfg, "ff+kf", model)
+    loop = Loop(params, SimTransport(sim_plant(cfg)), SilentAfter(70.0, 0.3), SETTINGS, clock=SimClock())
+    res = loop.run(1.0)
+    c = res.columns
+    late = c["t_s"] - 0.3 + 1e-3  # age of the last reference received (at the step before 0.3 s)
+    assert np.all(c["ref_lpm"][late <= SETTINGS.ref_stale_ms * 1e-3] == 70.0)
+    assert np.all(c["ref_lpm"][late > SETTINGS.ref_stale_ms * 1e-3 + 1e-3] == 0.0)
+    f = {x["kind"]: x for x in res.faults.to_list()}
+    assert f["stale_reference"]["count"] == 1
+    assert np.all(c["state"][1:] == RUNNING)  # a stale reference is not a stale valve
