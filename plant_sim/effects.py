@@ -63,9 +63,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "pure delay between the flow at the valve and the flow at the sensor"),
     Effect("dead_zone", "%", 42.0, (36.0, 45.0), (0.0, 100.0),
            "valve held closed (flow 0) while the duty is below this cracking duty; "
-           "the fitted model already closes near 35.6 %, so smaller values change nothing"),
+           "the fitted model already closes near 35 %, so smaller values change nothing"),
     Effect("saturation", "L/min", 160.0, (120.0, 200.0), (0.0, 1000.0),
-           "flow capped at this full-open flow (the fitted model reaches about 184 L/min)"),
+           "flow capped at this full-open flow (the fitted model reaches about 185 L/min)"),
     Effect("creep", "fraction", 0.05, (0.01, 0.15), (0.0, 1.0),
            "after each reversal the flow keeps drifting the way it went, towards this "
            "fraction of the last reversal-to-reversal flow step, with the creep time constant"),
