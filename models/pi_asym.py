@@ -52,8 +52,8 @@ from typing import ClassVar
 
 import numpy as np
 from numba import njit
-from scipy.linalg import cholesky, solve_triangular
-from scipy.optimize import lsq_linear, minimize
+from scipy.linalg import eigh
+from scipy.optimize import lsq_linear, minimize, nnls
 
 from .pi import MIN_SLOPE, thresholds
 
@@ -320,12 +320,17 @@ def _design(r, a, p, x):
 def _compressed(A, b):
     """``R, c, e`` with ``||A t - b||^2 = ||R t - c||^2 + e`` for every t.
 
-    From the Gram matrix (``A^T A = R^T R``, Cholesky): the N rows are read
-    once, and the small problem is solved many times in the envelope search.
+    From the Gram matrix, ``A^T A = V diag(lam) V^T`` and ``R = diag(sqrt(lam)) V^T``:
+    the N rows are read once, and the small problem is solved many times in the
+    envelope search. Directions the data does not excite (operators that never
+    move apart, ``lam`` ~ 0) get zero rows, so rank-deficient records still fit.
     """
-    L = cholesky(A.T @ A, lower=True)
-    c = solve_triangular(L, A.T @ b, lower=True)
-    return L.T, c, float(b @ b - c @ c)
+    lam, V = eigh(A.T @ A)
+    keep = lam > lam[-1] * 1e-13
+    root = np.sqrt(np.where(keep, lam, 0.0))
+    proj = V.T @ (A.T @ b)
+    c = np.where(keep, proj / np.where(keep, root, 1.0), 0.0)
+    return root[:, None] * V.T, c, float(b @ b - c @ c)
 
 
 def _fit_bounded(R, c, e, min_slope):
@@ -363,13 +368,35 @@ def _fit_weights(R, c, e, r, a, p, min_slope):
     G = _falling_constraint(r, a, p)
     if np.all(G @ theta[:m] >= min_slope * (1 - 1e-9)):
         return theta  # optimal for the larger feasible set, so here too
-    H = R.T @ R
-    g = R.T @ c
-    cons = [{"type": "ineq", "fun": lambda t: G @ t[:m] - min_slope, "jac": lambda t: np.column_stack([G, np.zeros(m)])},
-            {"type": "ineq", "fun": lambda t: t[:m] - min_slope, "jac": lambda t: np.eye(m, m + 1)}]
-    res = minimize(lambda t: 0.5 * t @ H @ t - g @ t, theta, jac=lambda t: H @ t - g,
-                   constraints=cons, method="SLSQP", options={"maxiter": 500, "ftol": 1e-14})
-    return res.x
+    C = np.zeros((2 * m, m + 1))
+    C[:m, :m] = np.eye(m)
+    C[m:, :m] = G
+    return _least_distance(R, c, C, np.full(2 * m, min_slope))
+
+
+def _least_distance(R, c, C, d):
+    """``argmin ||R t - c||`` subject to ``C t >= d``, through least-distance programming.
+
+    Lawson & Hanson (1974), "Solving Least Squares Problems", ch. 23: with
+    ``t = R^-1 (u + c)`` the problem is the least-norm ``u`` with
+    ``C R^-1 u >= d - C R^-1 c``, whose solution follows from one NNLS. Directions
+    the data leaves unexcited get a tiny ridge so that ``R`` is invertible.
+    """
+    lam, V = eigh(R.T @ R)
+    lam = np.maximum(lam, lam[-1] * 1e-10)
+    Rinv = V / np.sqrt(lam)  # R2^-1 for R2 = diag(sqrt(lam)) V^T, the same Gram as R
+    c2 = (V.T @ (R.T @ c)) / np.sqrt(lam)
+    Gu = C @ Rinv
+    h = d - Gu @ c2
+    E = np.vstack([Gu.T, h])
+    f = np.zeros(E.shape[0])
+    f[-1] = 1.0
+    v, _ = nnls(E, f, maxiter=50 * E.shape[1])
+    res = E @ v - f
+    if abs(res[-1]) < 1e-12:
+        raise ValueError("slope constraints cannot all be met")
+    u = -res[:-1] / res[-1]
+    return Rinv @ (u + c2)
 
 
 def fit_pi_asym(

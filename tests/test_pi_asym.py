@@ -9,12 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from scipy.optimize import minimize
 
 from models import play
 from models.fitting import fit_model
 from models.model import load_model, save_model
 from models.pi import thresholds
-from models.pi_asym import AsymmetricPIModel, InverseAsymmetricPI, envelope, fit_pi_asym
+from models.pi_asym import (AsymmetricPIModel, InverseAsymmetricPI, _compressed, _least_distance, envelope,
+                             fit_pi_asym)
 from tests.conftest import growing_sine
 
 
@@ -140,15 +142,33 @@ def test_fit_of_a_symmetric_recording_finds_little_widening():
 
 
 def test_fit_keeps_the_model_invertible_where_the_free_optimum_is_not():
-    # A strongly widened truth with a falling weight sum: least squares alone could
-    # return negative falling slopes; the constrained fit must not.
-    truth = known(a=8.0, p=3.0, seed=3)
+    # A truth whose output falls back when the input falls at high level (falling
+    # slope negative): least squares alone would return it; the constrained fit must not.
+    r = thresholds(10)
+    w = np.array([0.3, 0.05, 0.05, 0.0, 0.0, -0.1, -0.1, -0.05, 0.0, 0.0, 0.0])
+    truth = AsymmetricPIModel(r=r, w=w, a=10.0, p=2.0)
+    assert not truth.invertible
     x = sweep()
-    rng = np.random.default_rng(0)
-    y = truth.predict(x)[0] + rng.normal(0, 0.02, len(x))
-    fit = fit_pi_asym(x, y, n=20)
+    y, _ = truth.predict(x)
+    fit = fit_pi_asym(x, y, n=10, envelope=(10.0, 2.0))
     up, down = fit.slopes()
     assert fit.invertible and np.all(up >= 1e-3 * (1 - 1e-6)) and np.all(down >= 1e-3 * (1 - 1e-6))
+    assert np.sqrt(np.mean((fit.predict(x)[0] - y) ** 2)) < 0.05 * np.ptp(y)  # still a fit
+
+
+def test_least_distance_solver_matches_a_general_qp_solver():
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(200, 6))
+    b = rng.normal(size=200)
+    C = rng.normal(size=(8, 6))
+    d = C @ rng.normal(size=6) - 0.5  # feasible: a known point meets every constraint with margin
+    t = _least_distance(*_compressed(A, b)[:2], C, d)
+    H, g = A.T @ A, A.T @ b
+    ref = minimize(lambda v: 0.5 * v @ H @ v - g @ v, np.zeros(6), jac=lambda v: H @ v - g, method="SLSQP",
+                   constraints=[{"type": "ineq", "fun": lambda v: C @ v - d, "jac": lambda v: C}],
+                   options={"ftol": 1e-15, "maxiter": 1000})
+    assert np.all(C @ t >= d - 1e-9)
+    np.testing.assert_allclose(t, ref.x, atol=1e-6)
 
 
 @st.composite
