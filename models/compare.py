@@ -21,7 +21,7 @@ from .preprocess import preprocess
 from .recording import Recording
 
 #: Model kinds the comparison runs, in Table 1 order.
-COMPARE_KINDS: tuple[str, ...] = ("pi",)
+COMPARE_KINDS: tuple[str, ...] = ("bouc-wen", "pi", "pi-asym", "preisach", "preisach-cont")
 #: The paper fits its direct inverse with 25 thresholds (§2.3).
 INVERSE_N = 25
 
