@@ -57,7 +57,7 @@ from numba import njit
 (S_TEMP, S_WANDER, S_LAG1, S_LAG2, S_CREEP, S_CREEP_TARGET, S_Q_REV, S_DIR,
  S_U_PREV, S_Q_PREV, S_QV_PREV, N_STATE) = range(12)
 
-# -- outputs Y[b, n, :] --
+# -- outputs out[n, b, :] --
 (O_FLOW, O_TRUE, O_SUPPLY, O_TEMP, N_OUT) = range(5)
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)

@@ -106,6 +106,15 @@ class PlantParams:
             raise InputError(f"plant model: kind {self.model.kind!r}, the plant needs a 'pi' model")
         if self.dynamics_order not in (1, 2):
             raise InputError(f"plant: dynamics_order must be 1 or 2, got {self.dynamics_order}")
+        for name in ("coil_tau_s", "wander_tau_s", "creep_tau_s", "droop_ref_lpm", "atmosphere_bar"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"plant: {name} must be positive, got {getattr(self, name)}")
+        for name in ("noise_lpm", "scale_factor", "droop_bar", "coil_alpha_per_k"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise InputError(f"plant: {name} must be zero or positive, got {getattr(self, name)}")
+        lo, hi = self.range_lpm
+        if not lo < hi:
+            raise InputError(f"plant: range_lpm must be [low, high] with low < high, got {list(self.range_lpm)}")
         for name in EFFECTS:
             object.__setattr__(self, name, check_effect(name, getattr(self, name), "plant"))
 
