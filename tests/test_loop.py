@@ -191,3 +191,11 @@ def test_a_reference_that_stops_arriving_drops_to_zero_after_ref_stale_ms(cfg, m
     f = {x["kind"]: x for x in res.faults.to_list()}
     assert f["stale_reference"]["count"] == 1
     assert np.all(c["state"][1:] == RUNNING)  # a stale reference is not a stale valve
+
+
+def test_the_simulated_valve_keeps_time_through_missed_deadlines(cfg, model):
+    """After skipped deadlines the plant has stepped once per elapsed period, not once per loop step."""
+    transport = SimTransport(sim_plant(cfg))
+    res = run(cfg, model, transport=transport, duration=0.5, clock=LateClock(100, 3.5))
+    assert res.overruns == 3
+    assert transport.state.k == 1 + res.steps + res.overruns  # the initial read, then one step per period

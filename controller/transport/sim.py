@@ -2,7 +2,10 @@
 
 Each command steps the plant one period; the flow it measures is the loop's
 measurement at the next step, one period later, as a sensor read at the
-start of the period would be. The plant's rate is the loop's rate.
+start of the period would be. The plant's rate is the loop's rate. When the
+loop missed deadlines, the valve went on in the meantime: the plant first
+steps through the missed periods with the duty it had, so simulated time
+keeps up with the loop's clock.
 """
 from __future__ import annotations
 
@@ -24,6 +27,8 @@ class SimTransport:
         self.state, out = plant.step(self.state, duty0_pct)
         self._meas = out.flow_lpm
         self.last = out
+        self._duty = duty0_pct
+        self._t = None  # time of the last command, s
 
     def poll_measurement(self, accept) -> tuple[float | None, int]:
         v, self._meas = self._meas, None
@@ -32,6 +37,10 @@ class SimTransport:
         return (v, 0) if accept(v) else (None, 1)
 
     def command(self, duty_pct: float, t_s: float) -> None:
+        if self._t is not None:
+            for _ in range(int(round((t_s - self._t) * self.plant.rate_hz)) - 1):  # missed periods
+                self.state, _ = self.plant.step(self.state, self._duty)
+        self._t, self._duty = t_s, duty_pct
         self.state, self.last = self.plant.step(self.state, duty_pct)
         self._meas = self.last.flow_lpm
 
