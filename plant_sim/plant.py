@@ -163,6 +163,8 @@ def load_plant(
         for name, v in value.items():
             if name not in _SECTIONS[key]:
                 raise InputError(f"{path}: key '{key}.{name}': unknown")
+            if key == "effects":
+                v = check_effect(name, v, f"{path}: [effects]")
             fields[name] = tuple(v) if isinstance(v, list) else v
     if "model" not in doc:
         raise InputError(f"{path}: key 'model': missing (path of the forward model file)")
@@ -170,9 +172,10 @@ def load_plant(
     for name, v in (effects or {}).items():
         fields[name] = check_effect(name, v, "effect")
     fields.update(overrides)
+    model = load_model(model_path)
     try:
-        return PlantParams(model=load_model(model_path), **fields)
-    except TypeError as exc:
+        return PlantParams(model=model, **fields)
+    except (TypeError, ValueError) as exc:  # InputError included: name the file
         raise InputError(f"{path}: {exc}") from None
 
 
