@@ -263,8 +263,8 @@ class Loop:
         gc.freeze()
         gc_was_enabled = gc.isenabled()
         gc.disable()
-        rt = realtime(cfg.rt_priority if isinstance(clock, RealClock) else 0)
-        rt.__enter__()
+        rt = contextlib.ExitStack()
+        rt.enter_context(realtime(cfg.rt_priority if isinstance(clock, RealClock) else 0))
         t0 = clock.now()
         deadline = t0
         try:
@@ -361,7 +361,7 @@ class Loop:
                         if steps >= n_steps:
                             break
         finally:
-            rt.__exit__(None, None, None)
+            rt.close()
             if gc_was_enabled:
                 gc.enable()
             gc.unfreeze()

@@ -90,9 +90,9 @@ class KFParams:
                                      for v in (tau_s, delay_s, q_flow_lpm, q_bias_lpm, r_lpm)))
         a, kf, kb = (np.empty(batch) for _ in range(3))
         for i, (tau, _, qf, qb, r) in enumerate(zip(*cols)):
-            F, _, H, Q, R = matrices(tau, dt_s, qf, qb, r)
-            a[i] = F[0, 0]
-            kf[i], kb[i] = steady_gain(F, H, Q, R)
+            f = design(tau, dt_s, qf, qb, r)  # filterpy holds the design; the loop runs its steady state
+            a[i] = f.F[0, 0]
+            kf[i], kb[i] = steady_gain(f.F, f.H, f.Q, f.R)
         delay = np.rint(cols[1] / dt_s).astype(np.int64)
         return cls(a, kf, kb, delay)
 
