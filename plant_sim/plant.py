@@ -145,8 +145,11 @@ def load_plant(
     """Read a plant TOML file, then apply ``effects`` and field ``overrides``.
 
     The file's ``model`` key names the model file, relative to the TOML's folder.
+    The default path is tried in the working directory, then in this checkout.
     """
     path = os.fspath(path)
+    if path == DEFAULT_PLANT and not os.path.exists(path):
+        path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), DEFAULT_PLANT)
     try:
         with open(path, "rb") as fh:
             doc = tomllib.load(fh)
