@@ -49,7 +49,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "operator's descending threshold grows by a s h, h the model's mean operator "
            "half-width, s = 0 at the bottom and 1 at the top of the identified duty range "
            "(a = 1: twice as wide at full flow)"),
-    Effect("coil_heating", "K", 40.0, (10.0, 80.0), (0.0, 200.0),
+    Effect("coil_heating", "K", 20.0, (5.0, 40.0), (0.0, 200.0),
            "coil temperature, first order (tau minutes) driven by coil power ∝ duty², "
            "settles this many K above ambient at 55 % duty; resistance +0.393 %/K, so the "
            "current (the duty the magnetics see) falls as the coil warms"),
