@@ -261,10 +261,18 @@ def everett_mesh(curves: ReversalCurves, n_mesh: int = N_MESH) -> np.ndarray:
     lo = min(curves.beta.min(), curves.alpha.min())
     hi = max(curves.alpha.max(), curves.beta.max())
     A, B = np.meshgrid(np.clip(g, lo, hi), np.clip(g, lo, hi), indexing="ij")
+    # Samples are dense along each curve (and curves repeat): average them in bins of a
+    # quarter mesh step, which keeps the triangulation small and averages the noise.
+    step = 0.5 / n_mesh
+    cell = np.round(np.column_stack([curves.alpha, curves.beta]) / step).astype(np.int64)
+    _, idx = np.unique(cell, axis=0, return_inverse=True)
+    idx = idx.ravel()
+    count = np.bincount(idx)
+    mean = np.column_stack([np.bincount(idx, w) / count for w in (curves.alpha, curves.beta, curves.everett)])
     # F vanishes on the diagonal: known points that anchor the interpolation there.
     diag = np.linspace(lo, hi, n_mesh + 1)
-    pts = np.column_stack([np.concatenate([curves.alpha, diag]), np.concatenate([curves.beta, diag])])
-    pf = np.concatenate([curves.everett, np.zeros_like(diag)])
+    pts = np.column_stack([np.concatenate([mean[:, 0], diag]), np.concatenate([mean[:, 1], diag])])
+    pf = np.concatenate([mean[:, 2], np.zeros_like(diag)])
     E = griddata(pts, pf, (A, B), method="linear")
     holes = np.isnan(E)
     if holes.any():
