@@ -18,8 +18,10 @@ record (their weight is shared equally: the data cannot tell them apart).
 Relays that never switch on the fitted record get no weight; the offset ``c``
 takes their constant part.
 
-The relays are updated in a numba-compiled loop; prediction accumulates the
-weighted sum without the N x 1275 matrix. At the first sample the relays sit
+The relays are updated in numba-compiled loops; prediction switches only the
+relays whose levels the input crossed since the last sample (found in the
+sorted levels) and updates the weighted sum by them, without the N x 1275
+matrix. At the first sample the relays sit
 in the state of an input relaxed at ``x0`` (the Preisach image of a PI
 without memory, Eq. 3 with ``y_i0 = x0``): every relay with ``alpha <= x0`` up,
 ``beta > x0`` down, and in between up below the line ``alpha + beta = 2 x0``.
@@ -71,17 +73,36 @@ def _update(alpha, beta, g, xk):
 
 
 @njit(cache=True)
-def _weighted(alpha, beta, mu, x, state):
+def _weighted(alpha, beta, mu, x, state, by_alpha, by_beta):
+    # After a sample at xp every relay with alpha <= xp is up and every one with
+    # beta > xp down, so the next sample switches only those with alpha in (xp, x]
+    # (rising) or beta in (x, xp] (falling): found in the sorted levels, and the
+    # weighted sum is updated by the switched relays alone.
     g = state.copy()
     out = np.empty(x.shape[0])
+    if x.shape[0] == 0:
+        return out, g
+    a_sorted = alpha[by_alpha]
+    b_sorted = beta[by_beta]
+    _update(alpha, beta, g, x[0])
     acc = 0.0
     for i in range(g.shape[0]):
         acc += mu[i] * g[i]
-    for k in range(x.shape[0]):
-        if _update(alpha, beta, g, x[k]):
-            acc = 0.0
-            for i in range(g.shape[0]):
-                acc += mu[i] * g[i]
+    out[0] = acc
+    for k in range(1, x.shape[0]):
+        xp, xk = x[k - 1], x[k]
+        if xk > xp:
+            for q in range(np.searchsorted(a_sorted, xp, "right"), np.searchsorted(a_sorted, xk, "right")):
+                i = by_alpha[q]
+                if g[i] != 1:
+                    g[i] = 1
+                    acc += 2.0 * mu[i]
+        elif xk < xp:
+            for q in range(np.searchsorted(b_sorted, xk, "right"), np.searchsorted(b_sorted, xp, "right")):
+                i = by_beta[q]
+                if g[i] != -1:
+                    g[i] = -1
+                    acc -= 2.0 * mu[i]
         out[k] = acc
     return out, g
 
@@ -158,7 +179,8 @@ class PreisachModel:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        y, g = _weighted(self.alpha, self.beta, self.mu, x, np.asarray(state, dtype=np.int8))
+        y, g = _weighted(self.alpha, self.beta, self.mu, x, np.asarray(state, dtype=np.int8),
+                         np.argsort(self.alpha, kind="stable"), np.argsort(self.beta, kind="stable"))
         return y + self.offset, g
 
     def to_params(self) -> dict:
