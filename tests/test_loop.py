@@ -199,3 +199,32 @@ def test_the_simulated_valve_keeps_time_through_missed_deadlines(cfg, model):
     res = run(cfg, model, transport=transport, duration=0.5, clock=LateClock(100, 3.5))
     assert res.overruns == 3
     assert transport.state.k == 1 + res.steps + res.overruns  # the initial read, then one step per period
+
+
+def test_batch_closed_loop_matches_the_live_loop(cfg, model):
+    """controller.tuning.closed_loop (arrays of candidates) and the live loop (batch of one) agree step for step."""
+    import dataclasses
+
+    from controller.laws import control, pid
+    from controller.tuning import closed_loop
+    from plant_sim.plant import BatchPlant, load_plant
+
+    def ref(t):
+        return 60.0 + 30.0 * math.sin(2 * math.pi * 1.5 * t)
+
+    pp = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
+    kp = np.array([0.1, 0.4])
+    base = controller_params(cfg, "ff+pid", model)
+    batch = dataclasses.replace(control.repeat(base, 2),
+                                pid=pid.PIDParams.make(2, kp=kp, ki=10.0, kd=0.001, tf_s=0.003, tt_s=0.01))
+    n, preview = 400, 20
+    sim = closed_loop(batch, BatchPlant([pp, pp], RATE, [0, 0]), np.array([ref(k / RATE) for k in range(n)]), RATE,
+                      preview)
+    for j in range(2):
+        one = dataclasses.replace(base, pid=pid.PIDParams.make(1, kp=kp[j], ki=10.0, kd=0.001, tf_s=0.003, tt_s=0.01))
+        loop = Loop(one, SimTransport(sim_plant(cfg, seed=0)), ProfileReference(ref, preview / RATE), SETTINGS,
+                    clock=SimClock())
+        res = loop.run(n / RATE)
+        m = n - preview  # closed_loop holds the last reference past its end; the profile goes on
+        np.testing.assert_allclose(res.columns["duty_pct"][:m], sim.duty_pct[:m, j], atol=1e-6)
+        np.testing.assert_allclose(res.columns["flow_lpm"][:m], sim.flow_lpm[:m, j], atol=1e-6)

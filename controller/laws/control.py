@@ -177,3 +177,17 @@ def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> 
               if p.inverse is not None else 0.0)
         s = s._replace(pid=pid.transfer(p.pid, s.pid, ref_lpm, meas_lpm, ff, s_old.duty_pct))
     return s
+
+
+def repeat(p: ControllerParams, times: int) -> ControllerParams:
+    """The batch of ``p`` repeated ``times`` times along the candidate axis (to vary some gains after)."""
+    import dataclasses
+
+    def rep(obj):
+        if obj is None:
+            return None
+        return dataclasses.replace(obj, **{f.name: np.repeat(getattr(obj, f.name), times, axis=0)
+                                           for f in dataclasses.fields(obj)
+                                           if isinstance(getattr(obj, f.name), np.ndarray)})
+
+    return dataclasses.replace(p, **{k: rep(getattr(p, k)) for k in ("limits", "inverse", "forward", "pid", "kf", "lead")})
