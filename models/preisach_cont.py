@@ -44,6 +44,8 @@ import numpy as np
 from numba import njit
 from scipy.interpolate import griddata
 
+from .recording import InputError
+
 #: Mesh resolution: intervals per axis over [-1, 1].
 N_MESH = 50
 #: Staircase capacity (alternating extrema kept; beyond it the innermost pair is merged).
@@ -295,7 +297,7 @@ def fit_preisach_cont(x: np.ndarray, y: np.ndarray, n_mesh: int = N_MESH) -> Con
     y = np.asarray(y, dtype=np.float64)
     curves = reversal_curves(x, y, n_mesh)
     if len(curves.everett) < 3:
-        raise ValueError("too few reversal curves in the recording: the input must turn at least twice")
+        raise InputError("preisach-cont: the input turns too rarely to read reversal curves (at least twice needed)")
     E = everett_mesh(curves, n_mesh)
     model = ContinuousPreisachModel(everett=E, offset=0.0)
     pred, _ = model.predict(x)

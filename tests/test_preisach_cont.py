@@ -8,6 +8,7 @@ import pytest
 
 from models.fitting import fit_model
 from models.model import load_model, save_model
+from models.recording import InputError
 from models.preisach_cont import (STACK, ContinuousPreisachModel, _everett, fit_preisach_cont, relaxed_state,
                                   reversal_curves)
 from tests.conftest import growing_sine
@@ -131,3 +132,9 @@ def test_params_and_model_file_round_trip_exactly(tmp_path):
     np.testing.assert_array_equal(back.everett, model.core.everett)
     save_model(model, tmp_path / "m.json")
     np.testing.assert_array_equal(load_model(tmp_path / "m.json").predict(duty)[0], model.predict(duty)[0])
+
+
+def test_a_recording_without_reversals_is_refused_in_one_line():
+    x = np.linspace(-1, 1, 200)
+    with pytest.raises(InputError, match="reversal curves"):
+        fit_preisach_cont(x, x**3)
