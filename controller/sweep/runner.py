@@ -106,13 +106,10 @@ def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict):
         built.append(p)
         groups.setdefault((structure(p), int(round(preview * rate))), []).append(i)
     per = max(1, s.chunk_loops // len(plants))
-    chunks, index = [], []
-    for (_, preview), idx in groups.items():
-        for a in range(0, len(idx), per):
-            part = idx[a:a + per]
-            chunks.append(Chunk([built[i] for i in part], plants, ref, rate, preview, run[""]["seed"]))
-            index.append(part)
-    return chunks, index
+    parts = [(preview, idx[a:a + per]) for (_, preview), idx in groups.items() for a in range(0, len(idx), per)]
+    parts.sort(key=lambda p: -len(p[1]))  # largest first: the pool's workers finish together
+    chunks = [Chunk([built[i] for i in part], plants, ref, rate, preview, run[""]["seed"]) for preview, part in parts]
+    return chunks, [part for _, part in parts]
 
 
 def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None = None) -> SweepResult:
