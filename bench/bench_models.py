@@ -58,7 +58,8 @@ def table(rec, val) -> dict:
 
     rows["pi, relaxed start"] = (t_sym, score(rec.duty_pct, rec.flow_lpm), score(val.duty_pct, val.flow_lpm))
     for name, (fit_s, ins, out) in rows.items():
-        print(f"{name:<22}{fit_s:7.2f}{ins.mae:8.2f}{ins.rmse:8.2f}{ins.r:9.4f}  |{out.mae:8.2f}{out.rmse:9.2f}{out.r:9.4f}")
+        print(f"{name:<22}{fit_s:7.2f}{ins.mae:8.2f}{ins.rmse:8.2f}{ins.r:9.4f}"
+              f"  |{out.mae:8.2f}{out.rmse:9.2f}{out.r:9.4f}")
     total = sum(rows[k][0] for k in ORDER)
     pi_val = rows["pi"][2].rmse
     print(f"all five fits: {total:.1f} s (limit 120 s)")

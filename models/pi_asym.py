@@ -429,6 +429,7 @@ def fit_pi_asym(
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     r = thresholds(n, x_max=float(np.max(np.abs(x))))
+
     def cost(ap):
         a, p = np.clip(ap, (A_BOUNDS[0], P_BOUNDS[0]), (A_BOUNDS[1], P_BOUNDS[1]))
         return _fit_bounded(*_compressed(_design(r, a, p, x), y), min_slope)[1]
