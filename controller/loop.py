@@ -16,8 +16,9 @@ Per step (one period):
    values (``bad_measurement`` / ``bad_reference``); clamp the reference to
    the valve's range;
 3. watchdog: no fresh measurement for ``stale_ms`` -> ``safe`` (command
-   ``safe_duty_pct``, fault ``stale``); fresh data -> ``running`` again,
-   resumed bumplessly (:func:`controller.laws.control.resume`);
+   ``safe_duty_pct``, fault ``stale``, or ``no_measurement`` if none ever
+   came since the start); fresh data -> ``running`` again, resumed
+   bumplessly (:func:`controller.laws.control.resume`);
 4. the control law (the batch of one) or the safe duty;
 5. command, tracking error, status at ``status_hz``, record row;
 6. compute time = end of the step - wake.
@@ -299,7 +300,8 @@ class Loop:
                 # 3. watchdog
                 if meas_dog.stale(t):
                     if not stale:
-                        faults.add("stale", t)
+                        # Data that stopped is a stale valve; data that never came, a missing one.
+                        faults.add("stale" if meas == meas else "no_measurement", t)
                         stale = True
                     state = SAFE
                 elif fresh and state != RUNNING:

@@ -102,7 +102,7 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     s = json.loads(summ.read_text())
     faults = {f["kind"]: f for f in s["faults"]}
     assert faults["bad_reference"]["count"] > 0 and faults["bad_measurement"]["count"] > 0
-    assert faults["stale"]["count"] >= 1
+    assert faults["stale"]["count"] == 1  # the kill (a late valve at start-up is `no_measurement`)
     table = rows(rec)
     state = np.array([r[6] for r in table])
     age = np.array([float(r[7]) for r in table])
