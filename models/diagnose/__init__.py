@@ -12,7 +12,7 @@ follow DESIGN.md, Diagnosis:
    law (:mod:`.effects`) added to the baseline and tested on held-out blocks
    (:mod:`.folds`) against margins calibrated on effect-free recordings
    (:mod:`.calibrate`).
-4. *Model*: named effects are added greedily with refit (:mod:`.design`),
+4. *Model*: named effects are added greedily, all coefficients refitted (:mod:`.design`),
    parameters reported in physical units with a plausibility check.
 5. *Show*: the final holdout (rows never used to fit anything) gives the
    before/after RMSE of every finding.
@@ -27,7 +27,7 @@ from ..metrics import Metrics, metrics
 from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
-from .design import build, fit_baseline, fit_final, fixed_base, refit_base
+from .design import build, fit_baseline, fit_final, fixed_base
 from .detectors import EFFECTS, Selection, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
@@ -151,9 +151,8 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     chain = {}
     for step in sel.steps:
         chain = {**chain, step.word: sel.chain[step.word]}
-        b = refit_base(base, sig, chain, folds.train)
-        theta = fit_final(build(b, sig, chain), sig.flow_lpm, folds.train)
-        preds.append(build(b, raw, chain).predict(theta))
+        theta = fit_final(build(base, sig, chain), sig.flow_lpm, folds.train)
+        preds.append(build(base, raw, chain).predict(theta))
     findings = []
     for i, step in enumerate(sel.steps):
         before, after = preds[i], preds[i + 1]

@@ -9,13 +9,17 @@ model linear in its remaining unknowns, so the augmented model is::
 The hysteresis core is the baseline's, with its weights as fitted: a PI of
 50 operators refitted on 5/6 of the training blocks is far less stable on
 the sixth (rare excursions set the states of the wide operators) than the
-effects it is meant to reveal. With a baseline fitted on the recording, its
-prediction enters as a free *gain* and *offset* (the two ways the baseline
-absorbed an effect on average); with a model file, the model's prediction is
-held fixed in ``F``. Each linear effect adds one column (asymmetric width,
-creep amplitude, sensor offset); transforms of the whole flow (pressure gain,
-lag, dead zone) act on ``F`` and on every column; input transforms (delay,
-coil heating) feed the model a different duty.
+effects it is meant to reveal. With a baseline fitted on the recording its
+prediction enters with a free *gain*, *offset* and *loop width* (the ways a
+baseline fitted with an effect present has bent to absorb it on average);
+with a model file the model's prediction is held fixed in ``F``. Each linear
+effect adds one column (asymmetric width, coil heating, creep amplitude,
+sensor offset). Whole-flow transforms (dead zone, supply-pressure gain,
+transport delay, lag) act on ``F`` and on every column; the hysteresis is
+time invariant and causal, so delaying its input and delaying its output are
+the same. Coil heating scales the effective duty by a few per cent at most
+(0.393 %/K), so it enters to first order: ``q(x (1 - e)) ~ q(x) - e x dq/dx``
+along the actual input history.
 """
 from __future__ import annotations
 
@@ -26,7 +30,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from .. import play
 from ..model import FittedModel
-from ..pi import MIN_SLOPE, PIModel, _least_squares, fit_pi
+from ..pi import PIModel, fit_pi
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
@@ -63,21 +67,6 @@ class Base:
     shape_scale: Scaling
     cache: dict = field(default_factory=dict, repr=False)
 
-    def response(self, sig: Signals, x: np.ndarray, key: tuple, want_excess: bool) -> tuple:
-        """Model prediction for duty ``x`` (and the descending excess, L/min), cached by input transform ``key``."""
-        k = (id(sig), key)
-        hit = self.cache.get(k)
-        if hit is None or (want_excess and hit[1] is None):
-            q = hit[0] if hit is not None else self.model.predict(x)[0]
-            excess = None
-            if want_excess:
-                x_unit = self.shape_scale.to_unit(x)
-                excess = fx.descending_excess(pi_columns(self.shape.r, x_unit), x_unit, self.shape.w) * self.y_half
-            if len(self.cache) > 48:
-                self.cache.clear()
-            hit = self.cache[k] = (q, excess)
-        return hit
-
     @property
     def x_scale(self) -> Scaling:
         return self.model.x_scale
@@ -85,6 +74,24 @@ class Base:
     @property
     def y_half(self) -> float:
         return self.model.y_scale.half_range
+
+    def response(self, sig: Signals) -> tuple:
+        """Prediction, loop offset, descending excess and ``x dq/dx`` (all L/min) on ``sig``'s duty (cached)."""
+        k = id(sig)
+        hit = self.cache.get(k)
+        if hit is None:
+            x = sig.duty_pct
+            q = self.model.predict(x)[0]
+            x_unit = self.shape_scale.to_unit(x)
+            ops = pi_columns(self.shape.r, x_unit)
+            loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
+            excess = fx.descending_excess(ops, x_unit, self.shape.w) * self.y_half
+            eps = 1e-3  # relative duty step of the central difference
+            slope = (self.model.predict(x * (1 + eps))[0] - self.model.predict(x * (1 - eps))[0]) / (2 * eps)
+            if len(self.cache) > 8:
+                self.cache.clear()
+            hit = self.cache[k] = (q, loop, excess, slope)
+        return hit
 
 
 def pi_columns(r: np.ndarray, x_unit: np.ndarray) -> np.ndarray:
@@ -104,7 +111,7 @@ class Design:
     X : ndarray, shape (N, p)
         Free columns; ``theta`` in L/min per column unit.
     names : tuple of str
-        Column names: ``gain`` and ``offset`` (refitted baseline), then effect words.
+        Column names: ``gain``, ``offset`` and ``loop_width`` (refitted baseline), then effect words.
     fit_ok : ndarray of bool
         Rows the fit may use (saturated rows are left to the clip).
     clip_hi : float or None
@@ -142,41 +149,66 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         (see :data:`models.diagnose.detectors.EFFECTS`); linear effects have ``{}``.
     """
     rate = sig.rate_hz
-    x = input_duty(sig, chain)
-    names: list[str] = []
-    F, excess = base.response(sig, x, _key(chain), "asymmetric_hysteresis" in chain)
+    n = len(sig.t_s)
+    F, loop, excess, slope = base.response(sig)
     ref = F
+    names: list[str] = []
     cols = []
     if base.refit:
-        cols += [F[:, None], np.ones((len(x), 1))]
-        names += ["gain", "offset"]
-        F = np.zeros(len(x))
+        cols += [F, np.ones(n), loop]
+        names += ["gain", "offset", "loop_width"]
+        F = np.zeros(n)
     if "asymmetric_hysteresis" in chain:
-        cols.append((excess * np.clip(ref, 0.0, None) / fx.FULL_FLOW_LPM)[:, None])
+        cols.append(excess * np.clip(ref, 0.0, None) / fx.FULL_FLOW_LPM)
         names.append("asymmetric_hysteresis")
-    X = np.hstack(cols) if cols else np.zeros((len(x), 0))
+    if "coil_heating" in chain:
+        cols.append(heating_column(sig, chain["coil_heating"], slope))
+        names.append("coil_heating")
+    X = np.column_stack(cols) if cols else np.zeros((n, 0))
     gain = flow_gain(sig, chain)
     F, X, ref = F * gain, X * gain[:, None], ref * gain
-    if "valve_dynamics" in chain:
-        tau = chain["valve_dynamics"]["tau_s"]
-        F, X = fx.first_order_lag(F, rate, tau), fx.first_order_lag(X, rate, tau)
-        ref = fx.first_order_lag(ref, rate, tau)
+    F, X, ref = (dynamics(v, rate, chain) for v in (F, X, ref))
     extra = []
     if "creep" in chain:
         # the column is the unrelaxed flow change; its coefficient is minus the creep amplitude
         extra.append(fx.creep_term(ref, rate, chain["creep"]["tau_s"]))
         names.append("creep")
     if "sensor_offset" in chain:
-        extra.append(np.ones(len(x)))
+        extra.append(np.ones(n))
         names.append("sensor_offset")
     if extra:
         X = np.hstack([X, np.column_stack(extra)])
-    fit_ok = np.ones(len(x), dtype=bool)
+    fit_ok = np.ones(n, dtype=bool)
     clip_hi = None
     if "saturation" in chain:
         clip_hi = chain["saturation"]["full_open_lpm"]
         fit_ok = ref < clip_hi
     return Design(F, X, tuple(names), fit_ok, clip_hi)
+
+
+def heating_column(sig: Signals, params: dict, slope: np.ndarray) -> np.ndarray:
+    """Flow change per kelvin of steady rise at 55 % duty (L/min/K), to first order in the resistance change.
+
+    The effective duty is ``x (1 + a T_mean) / (1 + a T)`` (:func:`effects.effective_duty`),
+    about ``x (1 - a (T - T_mean))``; with the measured coil temperature the column is per
+    kelvin of that temperature instead (its coefficient is then 1 for the copper law).
+    """
+    if sig.coil_temp_c is not None:
+        rise = sig.coil_temp_c
+    else:
+        x = sig.duty_pct
+        steady0 = (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
+        rise = fx.coil_temperature_rise(x, sig.rate_hz, params["tau_s"], 1.0, params.get("start", 1.0) * steady0)
+    return -fx.ALPHA_CU_PER_K * (rise - np.mean(rise)) * slope
+
+
+def dynamics(v: np.ndarray, rate_hz: float, chain: dict) -> np.ndarray:
+    """Transport delay, then the first-order lag, of a flow (or of every column)."""
+    if "transport_delay" in chain:
+        v = fx.delayed(v, rate_hz, chain["transport_delay"]["delay_s"])
+    if "valve_dynamics" in chain:
+        v = fx.first_order_lag(v, rate_hz, chain["valve_dynamics"]["tau_s"])
+    return v
 
 
 @dataclass(frozen=True)
@@ -277,72 +309,11 @@ def fixed_base(model: FittedModel, sig: Signals) -> Base:
     return Base(False, model, shape, xs)
 
 
-def input_duty(sig: Signals, chain: dict) -> np.ndarray:
-    """The duty the hysteresis sees: command delayed, then the coil-heating effective duty."""
-    x = sig.duty_pct
-    if "transport_delay" in chain:
-        x = fx.delayed(x, sig.rate_hz, chain["transport_delay"]["delay_s"])
-    if "coil_heating" in chain:
-        p = chain["coil_heating"]
-        if sig.coil_temp_c is not None:
-            rise = sig.coil_temp_c - 20.0  # R(T) = R_20 (1 + alpha (T - 20 C))
-        else:
-            steady0 = p["rise55_k"] * (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
-            rise = fx.coil_temperature_rise(x, sig.rate_hz, p["tau_s"], p["rise55_k"], p.get("start", 1.0) * steady0)
-        x = fx.effective_duty(x, rise, float(np.mean(rise)))
-    return x
-
-
 def flow_gain(sig: Signals, chain: dict) -> np.ndarray:
-    """Pointwise factor on the whole flow: dead zone (on the delayed command) times supply-pressure gain."""
+    """Pointwise factor on the whole flow at the valve: dead zone times supply-pressure gain."""
     g = np.ones(len(sig.t_s))
     if "dead_zone" in chain:
-        x = sig.duty_pct
-        if "transport_delay" in chain:
-            x = fx.delayed(x, sig.rate_hz, chain["transport_delay"]["delay_s"])
-        g = g * fx.open_mask(x, chain["dead_zone"]["cracking_pct"])
+        g = g * fx.open_mask(sig.duty_pct, chain["dead_zone"]["cracking_pct"])
     if "supply_pressure" in chain and sig.supply_bar is not None:
         g = g * fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), chain["supply_pressure"]["exponent"])
     return g
-
-
-def refit_base(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
-    """Refit the baseline PI's weights *through* the chain on ``rows`` (paper's constrained fit).
-
-    A baseline fitted on a recording that has an effect has bent its weights
-    to absorb part of it (a lag widens the loop, a heating coil lowers the
-    gain); once the effect is modelled, the weights are refitted with it, so
-    the next effect is tested against the corrected hysteresis. The play
-    operator outputs go through the same whole-flow transforms as the model's
-    prediction (dead zone, pressure gain, lag) and are fitted together with
-    the effect columns; the loading-curve slopes stay positive
-    (:data:`models.pi.MIN_SLOPE`, Kuhnen's condition).
-    """
-    if not base.refit or not chain:
-        return base
-    core = base.model.core
-    xs, ys = base.model.x_scale, base.model.y_scale
-    d = build(base, sig, chain)
-    Y = pi_columns(core.r, xs.to_unit(input_duty(sig, chain)))
-    m = Y.shape[1]
-    YD = Y.copy()
-    YD[:, :-1] -= Y[:, 1:]  # partial-sum unknowns, as in models.pi.fit_pi
-    # the whole-flow transforms act on the operator columns as on the prediction
-    g = flow_gain(sig, chain)
-    cols = np.column_stack([YD * g[:, None], g])
-    if "valve_dynamics" in chain:
-        cols = fx.first_order_lag(cols, sig.rate_hz, chain["valve_dynamics"]["tau_s"])
-    A = np.column_stack([cols, d.X[:, 2:]])
-    fr = rows & d.fit_ok
-    lb = np.full(A.shape[1], -np.inf)
-    lb[:m] = MIN_SLOPE * ys.half_range
-    theta = _least_squares(A[fr], sig.flow_lpm[fr], lb)
-    w = np.diff(theta[:m], prepend=0.0) / ys.half_range
-    offset = (theta[m] - ys.center) / ys.half_range
-    new = PIModel(r=core.r, w=w, offset=offset, y0=core.y0)
-    model = FittedModel("pi", new, xs, ys, meta={**base.model.meta, "refitted_with": list(chain)})
-    return Base(True, model, new, xs)
-
-
-def _key(chain: dict) -> tuple:
-    return (tuple(chain.get("transport_delay", {}).items()), tuple(chain.get("coil_heating", {}).items()))

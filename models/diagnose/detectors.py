@@ -13,6 +13,8 @@ at least ``min_wins`` of the folds, and its parameters are physically
 plausible. Effects are added greedily, strongest first, each on top of those
 already named (forward selection with refit); the margin is the price of an
 extra effect, as in an information criterion, so fewer effects are preferred.
+Every step refits all linear coefficients (baseline gain, offset and loop
+width, and each named effect's) with the new effect in place.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from . import effects as fx
 from .calibrate import Margins
-from .design import Base, CVResult, Design, build, cross_validate, fit_final, refit_base
+from .design import Base, CVResult, Design, build, cross_validate, fit_final
 from .folds import Folds
 from .signals import Signals
 
@@ -34,8 +36,6 @@ WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dyna
          "dead_zone", "saturation", "creep", "sensor_offset")
 #: Most effects named in one recording.
 MAX_EFFECTS = 4
-#: Alternations of parameter search and baseline refit for a named effect.
-REFIT_ROUNDS = 2
 
 
 @dataclass(frozen=True)
@@ -87,9 +87,9 @@ def _heating_grid(sig: Signals, base: Base) -> dict:
     if sig.coil_temp_c is not None:
         return {}
     dur = sig.t_s[-1] - sig.t_s[0]
-    tau = np.geomspace(8.0, 1200.0, 7)
+    tau = np.geomspace(5.0, 1500.0, 11)
     # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
-    return {"tau_s": tau[tau <= 2.0 * dur], "rise55_k": np.geomspace(4.0, 160.0, 5), "start": np.array([0.0, 1.0])}
+    return {"tau_s": tau[tau <= 2.0 * dur], "start": np.array([0.0, 1.0])}
 
 
 def _no_supply(sig, base):
@@ -113,9 +113,11 @@ EFFECTS = {
         {"extra_width": "relative (1 = twice as wide) at full flow"}, {"extra_width": (0.01, 5.0)},
         lambda sig, base: {}),
     "coil_heating": Effect(
-        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty (1 + 0.00393 T_mean)/(1 + 0.00393 T)",
-        {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0"},
-        {"rise55_k": (1.0, 200.0), "tau_s": (2.0, 3600.0)}, _heating_grid),
+        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty (1 + 0.00393 T_mean)/(1 + 0.00393 T), "
+        "to first order",
+        {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
+         "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K"},
+        {"rise55_k": (0.05, 200.0), "tau_s": (2.0, 3600.0), "copper_law_ratio": (0.3, 3.0)}, _heating_grid),
     "supply_pressure": Effect(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column",
         {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
@@ -123,12 +125,12 @@ EFFECTS = {
         _no_supply),
     "valve_dynamics": Effect(
         "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q",
-        {"tau_s": "s"}, {"tau_s": (0.002, 2.0)},
-        lambda sig, base: {"tau_s": np.geomspace(max(0.4 / sig.rate_hz, 0.004), 1.5, 16)}),
+        {"tau_s": "s"}, {"tau_s": (0.0005, 2.0)},
+        lambda sig, base: {"tau_s": np.geomspace(0.1 / sig.rate_hz, 1.5, 20)}),
     "transport_delay": Effect(
         "transport_delay", "pure delay from command to measured flow",
-        {"delay_s": "s"}, {"delay_s": (0.001, 1.0)},
-        lambda sig, base: {"delay_s": np.geomspace(max(0.4 / sig.rate_hz, 0.003), 0.8, 16)}),
+        {"delay_s": "s"}, {"delay_s": (0.0005, 1.0)},
+        lambda sig, base: {"delay_s": np.geomspace(0.1 / sig.rate_hz, 0.8, 20)}),
     "dead_zone": Effect(
         "dead_zone", "no flow while the duty is below the cracking duty",
         {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, _dead_zone_grid, _dead_zone_applicable),
@@ -238,13 +240,16 @@ def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, s
         p["extra_width"] = float(coef[word])
     elif word == "creep":
         p["amplitude"] = -float(coef[word])  # the column is q - lag(q); creeping on is a negative coefficient
+    elif word == "coil_heating" and sig.coil_temp_c is not None:
+        p["copper_law_ratio"] = float(coef[word])  # 1: the measured temperature explains it by 0.393 %/K
+        p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
+    elif word == "coil_heating":
+        p["rise55_k"] = float(coef[word])
     elif word == "sensor_offset":
         p["offset_lpm"] = float(coef[word])
     elif word == "supply_pressure":
         lo, hi = np.percentile(sig.supply_bar, [1, 99])
         p["wander_bar"] = float(hi - lo) / 2.0
-    elif word == "coil_heating" and sig.coil_temp_c is not None:
-        p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
     return p
 
 
@@ -271,8 +276,6 @@ class Selection:
         Named effects (in the order added) with their nonlinear parameters.
     steps : list of Candidate
         The accepted test of each named effect.
-    base : Base
-        The baseline with its weights refitted through the chain.
     params : dict
         Word -> parameters in physical units (:func:`physical_params`).
     rejected : dict
@@ -281,7 +284,6 @@ class Selection:
         Word -> why it cannot be tested on this recording with this baseline.
     """
 
-    base: Base = None
     chain: dict = field(default_factory=dict)
     steps: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
@@ -310,14 +312,13 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         else:
             words.append(w)
     y = sig.flow_lpm
-    sel.base = base
     before = cross_validate(build(base, sig, {}), y, folds)
     while words and len(sel.chain) < MAX_EFFECTS:
         cands = []
         for w in words:
             if progress:
                 progress(w)
-            cands.append(test_effect(w, sel.chain, before, sel.base, sig, folds))
+            cands.append(test_effect(w, sel.chain, before, base, sig, folds))
         passing = []
         for c in cands:
             if c.gain > margins.gain[c.word] and c.wins >= margins.min_wins:
@@ -327,27 +328,24 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
                                         f"lower in {c.wins}/{len(c.test_after)} folds (needs {margins.min_wins})")
         accepted = None
         for c in sorted(passing, key=lambda c: -c.gain):
-            params, new_base = c.params, sel.base
-            for _ in range(REFIT_ROUNDS):  # alternate: effect parameters, then the weights through them
-                params = refine(c.word, sel.chain, params, new_base, sig, folds)
-                chain = {**sel.chain, c.word: params}
-                new_base = refit_base(base, sig, chain, folds.train)
-            d = build(new_base, sig, chain)
+            params = refine(c.word, sel.chain, c.params, base, sig, folds)
+            chain = {**sel.chain, c.word: params}
+            d = build(base, sig, chain)
             phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
             why = implausible(c.word, phys)
             if why:
                 sel.rejected[c.word] = f"fits better but is not physical: {why}"
                 continue
             c.params = params
-            accepted = (c, chain, new_base, phys)
+            accepted = (c, chain, phys)
             break
         if accepted is None:
             break
-        c, sel.chain, sel.base, phys = accepted
+        c, sel.chain, phys = accepted
         sel.params[c.word] = phys
         sel.steps.append(c)
         sel.rejected.pop(c.word, None)
         words = [w for w in words if w != c.word and w not in sel.rejected or
                  (w in sel.rejected and not sel.rejected[w].startswith("fits better"))]
-        before = cross_validate(build(sel.base, sig, sel.chain), y, folds)
+        before = cross_validate(build(base, sig, sel.chain), y, folds)
     return sel

@@ -27,7 +27,11 @@ FULL_FLOW_LPM = 200.0
 
 
 def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None) -> np.ndarray:
-    """``tau dy/dt = x - y`` sampled at ``rate_hz`` (step-invariant discretization).
+    """``tau dy/dt = x - y`` with ``x`` held between samples (exact zero-order-hold discretization).
+
+    ``y[k+1] = a y[k] + (1 - a) x[k]``, ``a = exp(-1 / (rate tau))``: a sample
+    reflects the input up to the previous sample, as a valve driven by a
+    sampled command does; as ``tau -> 0`` it tends to a one-sample delay.
 
     Parameters
     ----------
@@ -44,9 +48,11 @@ def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None) -> np.
     if tau_s <= 0:
         return x.copy()
     a = np.exp(-1.0 / (rate_hz * tau_s))
-    y0 = x[0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=np.float64), x.shape[1:])
-    zi = (a * np.asarray(y0))[None, ...] if x.ndim > 1 else np.atleast_1d(a * y0)
-    y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=0, zi=zi)
+    y0 = np.asarray(x[0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=np.float64), x.shape[1:]))
+    # y[k] = a y[k-1] + (1 - a) x[k-1]: filter the input shifted by one sample, starting at y0
+    xs = np.concatenate([np.broadcast_to(y0, (1,) + x.shape[1:]), x[:-1]], axis=0)
+    zi = (a * y0)[None, ...] if x.ndim > 1 else np.atleast_1d(a * y0)
+    y, _ = lfilter([1.0 - a], [1.0, -a], xs, axis=0, zi=zi)
     return y
 
 
@@ -134,6 +140,16 @@ def descending_excess(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -
     that widens at high flow.
     """
     return np.maximum(play_out - np.asarray(x_unit)[:, None], 0.0) @ np.asarray(w)
+
+
+def loop_offset(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Signed distance of a PI output from its anhysteretic curve: ``sum_i w_i (y_i - x)``.
+
+    Positive on descending branches, negative on ascending ones; scaling it
+    widens or narrows the whole loop (what a baseline fitted with a lag or an
+    asymmetry present has bent its weights to).
+    """
+    return (play_out - np.asarray(x_unit)[:, None]) @ np.asarray(w)
 
 
 def open_mask(duty_pct: np.ndarray, cracking_pct: float) -> np.ndarray:

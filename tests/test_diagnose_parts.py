@@ -1,0 +1,142 @@
+"""The diagnosis' parts against their equations: folds, effect laws, the CV design, residual location."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from models.diagnose import effects as fx
+from models.diagnose.calibrate import calibrate
+from models.diagnose.design import Design, cross_validate, fit_final
+from models.diagnose.folds import make_folds
+from models.diagnose.residuals import branch, since_event, where
+
+
+@settings(max_examples=25, deadline=None)
+@given(duration=st.floats(40.0, 3000.0), rate=st.sampled_from([10.0, 50.0, 200.0]))
+def test_folds_spread_holdout_and_cover(duration, rate):
+    t = np.arange(0.0, duration, 1.0 / rate)
+    f = make_folds(t)
+    hold = f.holdout
+    assert hold.mean() >= 0.2
+    # spread: held-out rows in the first and in the last third of the recording
+    third = len(t) // 3
+    assert hold[:third].any() and hold[-third:].any()
+    for k in range(f.k):
+        rows = np.flatnonzero(f.fold == k)
+        assert len(rows) > 0
+        assert t[rows[-1]] - t[rows[0]] > 0.3 * duration  # each fold samples the whole recording
+    # guards: no fitted row within GUARD_S of a block edge, holdout never fitted
+    assert not np.any(f.train & hold)
+    assert np.array_equal(f.holdout_at(t), hold)
+
+
+def test_folds_refuse_too_short():
+    with pytest.raises(ValueError, match="too short"):
+        make_folds(np.arange(0.0, 5.0, 0.01))
+
+
+@given(tau=st.floats(0.005, 2.0), rate=st.sampled_from([20.0, 100.0, 500.0]))
+@settings(max_examples=20, deadline=None)
+def test_lag_is_zoh_step_response(tau, rate):
+    n = int(5 * tau * rate) + 10
+    x = np.r_[np.zeros(3), np.ones(n)]
+    y = fx.first_order_lag(x, rate, tau)
+    k = np.arange(n)
+    # tau dy/dt = x - y with x held: y at k samples after the step sample is 1 - exp(-k / (rate tau))
+    np.testing.assert_allclose(y[3:], 1 - np.exp(-k / (rate * tau)), atol=1e-12)
+
+
+def test_delay_integer_and_fractional():
+    x = np.arange(10.0)
+    np.testing.assert_allclose(fx.delayed(x, 10.0, 0.3)[3:], x[:-3])
+    np.testing.assert_allclose(fx.delayed(x, 10.0, 0.25)[3:], x[3:] - 2.5)  # linear: x(t - 2.5 samples)
+    assert fx.delayed(x, 10.0, 0.3)[0] == x[0]
+
+
+def test_coil_temperature_settles_to_duty_squared_law():
+    duty = np.full(20000, 70.0)
+    T = fx.coil_temperature_rise(duty, 10.0, 60.0, 40.0, 0.0)
+    assert T[0] == 0.0
+    assert T[-1] == pytest.approx(40.0 * (70.0 / 55.0) ** 2, rel=1e-6)
+    # one time constant after a cold start: 1 - 1/e of the way
+    assert T[600] == pytest.approx(40.0 * (70 / 55) ** 2 * (1 - np.exp(-1)), rel=1e-3)
+
+
+def test_effective_duty_and_pressure_gain():
+    assert fx.effective_duty(np.array([50.0]), np.array([10.0]), 10.0)[0] == pytest.approx(50.0)
+    hot = fx.effective_duty(np.array([50.0]), np.array([20.0]), 0.0)[0]
+    assert hot == pytest.approx(50.0 / (1 + 0.00393 * 20))
+    assert fx.pressure_gain(np.array([3.0]), 3.0, 1.0)[0] == pytest.approx(1.0)
+    g = fx.pressure_gain(np.array([3.2]), 3.0, 1.0)[0]
+    assert g == pytest.approx((3.2 + fx.P_ATM_BAR) / (3.0 + fx.P_ATM_BAR))  # choked: absolute pressure
+
+
+def test_creep_term_relaxes_a_step():
+    q = np.r_[np.zeros(5), np.full(400, 10.0)]
+    c = fx.creep_term(q, 10.0, 5.0)
+    k = np.arange(400)
+    np.testing.assert_allclose(c[5:], 10.0 * np.exp(-k / 50.0), atol=1e-9)
+
+
+def test_descending_excess_only_on_descending_branch():
+    from models.diagnose.design import pi_columns
+    from models.pi import thresholds
+
+    r = thresholds(10)
+    w = np.full(len(r), 0.1)
+    x = np.r_[np.linspace(0, 1, 100), np.linspace(1, -1, 200), np.linspace(-1, 1, 200)]
+    ops = pi_columns(r, x)
+    e = fx.descending_excess(ops, x, w)
+    loop = fx.loop_offset(ops, x, w)
+    # at the bottom of a full descent every operator hangs r_i above the input
+    assert e[299] == pytest.approx(w @ r) and loop[299] == pytest.approx(w @ r)
+    # at the top of a full ascent none is above it: no excess, loop offset -sum w r
+    assert e[-1] == 0 and loop[-1] == pytest.approx(-(w @ r))
+    assert np.all(np.diff(e[300:]) <= 1e-12)  # ascending uses the excess up
+
+
+def test_cross_validation_recovers_a_linear_law():
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 120, 0.05)
+    f = make_folds(t)
+    X = np.column_stack([np.ones_like(t), np.sin(t / 7), rng.normal(size=len(t))])
+    theta = np.array([2.0, -1.5, 0.3])
+    y = X @ theta
+    d = Design(np.zeros(len(t)), X, ("a", "b", "c"), np.ones(len(t), dtype=bool))
+    cv = cross_validate(d, y, f)
+    assert np.all(np.abs(cv.test) < 1e-8)
+    np.testing.assert_allclose(fit_final(d, y, f.train), theta, rtol=1e-8)
+    # with noise, the pooled held-out error of the right law is near the noise
+    yn = y + rng.normal(0, 0.1, len(t))
+    cvn = cross_validate(d, yn, f)
+    assert np.sqrt(cvn.test.sum() / cvn.n.sum()) == pytest.approx(0.1, rel=0.1)
+    # a clip is honoured: predictions never exceed it
+    dc = Design(d.F, d.X, d.names, d.fit_ok, clip_hi=1.0)
+    assert np.all(dc.predict(fit_final(dc, y, f.train)) <= 1.0)
+
+
+def test_branch_and_events():
+    duty = np.r_[np.linspace(40, 60, 50), np.full(20, 60.0), np.linspace(60, 45, 30), [70.0] * 20]
+    t = np.arange(len(duty)) * 0.1
+    b = branch(duty)
+    assert np.all(b[1:70] == 1)  # ascending, held through the hold
+    assert np.all(b[71:100] == -1)
+    assert b[101] == 1  # the step up
+    s_step, s_rev = since_event(t, duty)
+    assert s_step[100] == 0.0 and s_step[105] == pytest.approx(0.5)
+    assert s_rev[71] == pytest.approx(0.0)
+
+
+def test_where_names_the_branch_and_region():
+    duty = np.r_[np.linspace(40, 70, 300), np.linspace(70, 40, 300)]
+    t = np.arange(len(duty)) * 0.1
+    delta = np.where(np.arange(len(duty)) >= 300, (duty - 40) / 10, 0.0)
+    text = where(t, duty, duty * 3, delta)
+    assert "descending branch" in text
+
+
+def test_calibrated_margin_exceeds_every_effect_free_gain():
+    m = calibrate({"creep": [0.01, 0.03, -0.2], "saturation": []})
+    assert m.gain["creep"] > 0.03 and m.gain["saturation"] > 0
