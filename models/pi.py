@@ -146,7 +146,10 @@ def fit_pi(
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     r = thresholds(n, x_max=float(np.max(np.abs(x))) if len(x) else 1.0)
-    Y = regressors(r, x)
+    # The valve is taken to rest at the first input (every operator relaxed at x(0)); that
+    # memory is kept as the model's y0, so Eq. (3) continues it on other recordings.
+    y0 = np.full(len(r), x[0]) if len(x) else np.zeros(len(r))
+    Y = regressors(r, x, y0)
     if rows is not None:
         Y, y = Y[rows], y[rows]
     m = len(r)
@@ -158,7 +161,7 @@ def fit_pi(
     A = np.column_stack([YD, np.ones(len(y))])
     lb = np.concatenate([np.full(m, min_slope), [-np.inf]]) if constrained else None
     theta = _least_squares(A, y, lb)
-    return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m])
+    return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m], y0=y0)
 
 
 #: Above this condition number of the compressed triangle, compress by QR instead of Cholesky.
