@@ -257,3 +257,17 @@ def test_lead_cancels_the_valve_lag():
         s, y = ffw.lead_step(p, s, np.array([1.0]), DT)
         flow = a * flow + (1 - a) * y[0]
     assert flow == pytest.approx(1 - (lag / (lag + DT)) ** int(5 * lag / DT), abs=1e-9)
+
+
+def test_stacked_banks_step_like_each_model_alone():
+    other = synthetic_model(seed=5)
+    both = ffw.stack([ffw.inverse_bank(MODEL), ffw.inverse_bank(other)])
+    alone = [ffw.inverse_bank(MODEL), ffw.inverse_bank(other)]
+    y = [90.0, 120.0, 60.0, 100.0]
+    s2 = ffw.init(both, y[0])
+    s1 = [ffw.init(b, y[0]) for b in alone]
+    for v in y:
+        s2, u2 = ffw.step(both, s2, np.full(2, v))
+        for j, b in enumerate(alone):
+            s1[j], u1 = ffw.step(b, s1[j], np.array([v]))
+            assert u2[j] == u1[0]
