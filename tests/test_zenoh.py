@@ -74,6 +74,9 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     try:
         wait_for(lambda: any(r[6] == "running" for r in rows(rec)[-50:]), "the controller running", (ctrl, node))
         with client_session(ep) as s:
+            seen = s.declare_subscriber("vent/valve/insp/**", zenoh.handlers.RingChannel(100000))
+            alive = s.liveliness().declare_subscriber("vent/valve/insp/alive/*", zenoh.handlers.RingChannel(16),
+                                                      history=True)
             ref = s.declare_publisher("vent/valve/insp/ref/flow", encoding=zenoh.Encoding.APPLICATION_JSON)
             meas = s.declare_publisher("vent/valve/insp/meas/flow", encoding=zenoh.Encoding.APPLICATION_JSON)
             bad = [b"not json", b'{"t": 0, "seq": 1}', b'{"value": "x"}', b'{"value": NaN}', b"[1, 2]",
@@ -86,6 +89,13 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
                     ref.put(bad[k // 10 % len(bad)])
                     meas.put(bad[k // 10 % len(bad)])
                 k += 1
+            time.sleep(0.3)  # a few status periods
+            samples = []
+            while (x := seen.try_recv()) is not None:
+                samples.append(x)
+            tokens = set()
+            while (x := alive.try_recv()) is not None:
+                tokens.add(str(x.key_expr))
         n_before = len(rows(rec))
         node.send_signal(signal.SIGKILL)
         node.wait(10)
@@ -98,6 +108,18 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
             if p.poll() is None:
                 p.kill()
                 p.wait()
+
+    # DESIGN.md payloads on every key the controller and the valve publish, and both liveliness tokens.
+    by_key = {}
+    for x in samples:
+        by_key.setdefault(str(x.key_expr).split("insp/")[1], []).append(x)
+    for key in ("cmd/duty", "ctrl/error", "ctrl/status", "meas/flow"):
+        mine = [x for x in by_key[key] if str(x.encoding) == "application/json"]
+        assert mine, key
+        d = json.loads(mine[-1].payload.to_bytes().decode("utf-8"))
+        assert {"t", "seq", "value"} <= set(d), key
+    assert json.loads(by_key["ctrl/status"][-1].payload.to_bytes())["value"]["state"] == "running"
+    assert tokens == {"vent/valve/insp/alive/controller", "vent/valve/insp/alive/valve"}
 
     s = json.loads(summ.read_text())
     faults = {f["kind"]: f for f in s["faults"]}
