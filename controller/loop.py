@@ -23,6 +23,11 @@ Per step (one period):
 5. command, tracking error, status at ``status_hz``, record row;
 6. compute time = end of the step - wake.
 
+Allocation: the loop's per-step records are preallocated arrays; the laws,
+pure functions over arrays, return fresh one-element arrays each step (a few
+dozen small numpy objects, microseconds, collected by reference counting
+with the garbage collector off).
+
 The clock is injectable: :class:`RealClock` for the live loop,
 :class:`SimClock` for tests and fast simulations (time jumps to each deadline).
 """
