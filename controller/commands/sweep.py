@@ -53,8 +53,11 @@ def run(args) -> int:
 
     print(f"{summ['candidates']} candidates x {summ['variants']} variants in {summ['seconds']:.1f} s "
           f"({summ['candidates'] / summ['seconds']:.0f} candidates/s) -> {args.output}")
-    print(f"default {d['params']['controller']}: {s.objective} {f(d[s.objective])} L, iae {f(d['iae'])} L")
-    print(f"best    {b['params']['controller']}: {s.objective} {f(b[s.objective])} L, iae {f(b['iae'])} L  "
+    def figs(x):
+        return f"iae {f(x['iae'])} L" + (f", {s.objective} {f(x[s.objective])}" if s.objective != "iae" else "")
+
+    print(f"default {d['params']['controller']}: {figs(d)}")
+    print(f"best    {b['params']['controller']}: {figs(b)}  "
           + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in b["params"].items()
                      if k != "controller"))
     return 0

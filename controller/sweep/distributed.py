@@ -30,7 +30,7 @@ def _progress(total: int, desc: str):
     from tqdm import tqdm
 
     # tqdm shows itself only when stderr is a terminal (disable=None)
-    return tqdm(total=total, desc=desc, unit="cand", file=sys.stderr, disable=None, smoothing=0.1)
+    return tqdm(total=total, desc=desc, unit="cand", file=sys.stderr, disable=None, smoothing=0.1, leave=False)
 
 
 def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: str | None = None,

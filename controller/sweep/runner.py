@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import metrics, simulate, spec as sp
-from .distributed import map_chunks
+from .distributed import default_workers, map_chunks
 
 MARGIN_NAMES = ("gain_margin_db", "phase_margin_deg")
 
@@ -63,8 +63,9 @@ def simulate_chunk(c: Chunk) -> dict:
     """Figures of the chunk's candidates, arrays (C, V)."""
     V = len(c.plants)
     params = simulate.stack_params([p for p in c.params for _ in range(V)])
-    r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, c.preview_steps)
-    return simulate.figures(r, V)
+    with one_blas_thread():
+        r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, c.preview_steps)
+        return simulate.figures(r, V)
 
 
 @dataclass
@@ -96,19 +97,47 @@ def load_models(s: sp.SweepSpec) -> dict:
     return models
 
 
-def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict):
-    """``(chunks, candidate indices per chunk)``: candidates grouped by structure and preview."""
+@dataclass(frozen=True)
+class Build:
+    """Candidates to build, picklable: the run, ``(word, settings)`` pairs and the models."""
+
+    run: object
+    rows: list
+    models: dict
+
+
+def one_blas_thread():
+    """BLAS on one thread: the pool already runs a process per core, and on the tiny matrices of a
+    Kalman design or a margin computation BLAS threads only wait for each other (10x slower on a busy machine)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(1, "blas")
+
+
+def build_many(b: Build) -> list:
+    """``[(ControllerParams, preview_s)]`` of a block of candidates (a Kalman design costs about a ms)."""
+    with one_blas_thread():
+        return [build_one(b.run, w, r, b.models) for w, r in b.rows]
+
+
+def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, scheduler: str | None = None,
+              workers: int | None = None):
+    """``(chunks, candidate indices per chunk)``: candidates built (in parallel), grouped by structure and preview."""
     run, cands = s.run, s.candidates
     rate = run["loop"]["rate_hz"]
-    groups, built = {}, []
-    for i in range(len(cands)):
-        p, preview = build_one(run, cands.controller[i], cands.row(i), models)
-        built.append(p)
+    pairs = [(cands.controller[i], cands.row(i)) for i in range(len(cands))]
+    n_blocks = max(1, min(len(pairs), 4 * (workers or default_workers())))
+    bounds = np.linspace(0, len(pairs), n_blocks + 1).astype(int)
+    blocks = [Build(run, pairs[a:b], models) for a, b in zip(bounds[:-1], bounds[1:])]
+    built = [x for part in map_chunks(build_many, blocks, [len(b.rows) for b in blocks], scheduler, workers,
+                                      desc="build") for x in part]
+    groups = {}
+    for i, (p, preview) in enumerate(built):
         groups.setdefault((structure(p), int(round(preview * rate))), []).append(i)
     per = max(1, s.chunk_loops // len(plants))
     parts = [(preview, idx[a:a + per]) for (_, preview), idx in groups.items() for a in range(0, len(idx), per)]
     parts.sort(key=lambda p: -len(p[1]))  # largest first: the pool's workers finish together
-    chunks = [Chunk([built[i] for i in part], plants, ref, rate, preview, run[""]["seed"]) for preview, part in parts]
+    chunks = [Chunk([built[i][0] for i in part], plants, ref, rate, preview, run[""]["seed"]) for preview, part in parts]
     return chunks, [part for _, part in parts]
 
 
@@ -118,7 +147,7 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
     plants = sp.plants(s.run, s.variants, s.path)
     ref = sp.reference(s.run, s.duration_s)
     models = load_models(s)
-    chunks, index = chunks_of(s, plants, ref, models)
+    chunks, index = chunks_of(s, plants, ref, models, scheduler, workers)
     results = map_chunks(simulate_chunk, chunks, [len(i) for i in index], scheduler, workers)
     n, V = len(s.candidates), len(plants)
     fig = {k: np.full((n, V), np.nan) for k in metrics.NAMES}
@@ -136,7 +165,9 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
     obj = np.asarray(table[s.objective], dtype=np.float64)
     best = int(np.nanargmin(np.where(np.isfinite(obj), obj, np.nan))) if np.isfinite(obj).any() else 0
     if s.margins_top:
-        table.update(_margins(s, plants[0], ref, models, np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]))
+        with one_blas_thread():
+            top = np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]
+            table.update(_margins(s, plants[0], ref, models, top))
         columns += list(MARGIN_NAMES)
     return SweepResult(s, table, columns, time.perf_counter() - t0, best)
 
