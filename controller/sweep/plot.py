@@ -101,15 +101,23 @@ def sweep_plot(table: dict, path: str, objective: str, effort: str = "duty_tv", 
     a.set_xlabel(f"control effort: {effort} (%)")
     a.set_ylabel(f"{objective} (L)")
     a.set_yscale("log")
+    if np.nanmin(np.where(e > 0, e, np.nan)) * 10 < np.nanmax(e):
+        a.set_xscale("log")
     a.legend(fontsize=8, loc="upper right")
     a.set_title("tracking against effort")
     if heat is not None:
         h = ax[0, 1]
-        im = h.pcolormesh(heat.x_edges, heat.y_edges, heat.value, shading="flat", cmap="viridis_r")
-        if heat.x_log:
-            h.set_xscale("log")
-        if heat.y_log:
-            h.set_yscale("log")
+        from matplotlib.colors import LogNorm
+
+        positive = np.nanmin(heat.value) > 0 if np.isfinite(heat.value).any() else False
+        im = h.pcolormesh(heat.x_edges, heat.y_edges, heat.value, shading="flat", cmap="viridis_r",
+                          norm=LogNorm() if positive else None)
+        from matplotlib.ticker import NullFormatter
+
+        for log, axis, scale in ((heat.x_log, h.xaxis, h.set_xscale), (heat.y_log, h.yaxis, h.set_yscale)):
+            if log:
+                scale("log")
+                axis.set_minor_formatter(NullFormatter())
         h.set_xlabel(heat.x_name)
         h.set_ylabel(heat.y_name)
         h.set_title(f"least {objective} per cell (L)")
