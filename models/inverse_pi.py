@@ -41,7 +41,9 @@ class InversePI:
     offset : float
         Forward offset ``c``, subtracted from ``y`` first.
     x0 : ndarray
-        Inverse operator states ``x_i'(0)`` matching the forward model's ``y0``, Eq. (7).
+        Inverse operator states ``x_i'(0)`` matching the forward model's ``y0``, Eq. (7);
+        NaN when the forward model starts at rest (then so does the inverse: a forward
+        memory at rest at ``x(0)`` maps by Eq. (7) to every ``x_i'(0) = y(0) - c``).
     """
 
     r: np.ndarray
@@ -53,7 +55,7 @@ class InversePI:
     def __post_init__(self):
         object.__setattr__(self, "r", np.asarray(self.r, dtype=np.float64))
         object.__setattr__(self, "w", np.asarray(self.w, dtype=np.float64))
-        x0 = np.zeros_like(self.r) if self.x0 is None else np.asarray(self.x0, dtype=np.float64)
+        x0 = np.full_like(self.r, np.nan) if self.x0 is None else np.asarray(self.x0, dtype=np.float64)
         object.__setattr__(self, "x0", x0)
 
     def init(self, y0: float, forward_state: np.ndarray | None = None) -> np.ndarray:
@@ -89,7 +91,8 @@ class InversePI:
         return np.diff(s, prepend=0.0)
 
     def to_params(self) -> dict:
-        return {"r": self.r.tolist(), "w": self.w.tolist(), "offset": self.offset, "x0": self.x0.tolist()}
+        x0 = None if np.all(np.isnan(self.x0)) else self.x0.tolist()
+        return {"r": self.r.tolist(), "w": self.w.tolist(), "offset": self.offset, "x0": x0}
 
     @classmethod
     def from_params(cls, p: dict) -> "InversePI":

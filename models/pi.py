@@ -50,7 +50,8 @@ class PIModel:
     offset : float
         Output offset ``c``.
     y0 : ndarray, shape (m,)
-        ``y_i0`` of Eq. (3), the operator memory before the first sample.
+        ``y_i0`` of Eq. (3), the operator memory before the first sample; NaN (the
+        default, ``null`` in the model file) means at rest at the first input.
     """
 
     r: np.ndarray
@@ -62,7 +63,7 @@ class PIModel:
     def __post_init__(self):
         object.__setattr__(self, "r", np.asarray(self.r, dtype=np.float64))
         object.__setattr__(self, "w", np.asarray(self.w, dtype=np.float64))
-        y0 = np.zeros_like(self.r) if self.y0 is None else np.asarray(self.y0, dtype=np.float64)
+        y0 = np.full_like(self.r, np.nan) if self.y0 is None else np.asarray(self.y0, dtype=np.float64)
         object.__setattr__(self, "y0", y0)
         object.__setattr__(self, "offset", float(self.offset))
 
@@ -105,7 +106,8 @@ class PIModel:
 
     # -- model file --
     def to_params(self) -> dict:
-        return {"r": self.r.tolist(), "w": self.w.tolist(), "offset": self.offset, "y0": self.y0.tolist()}
+        y0 = None if np.all(np.isnan(self.y0)) else self.y0.tolist()
+        return {"r": self.r.tolist(), "w": self.w.tolist(), "offset": self.offset, "y0": y0}
 
     @classmethod
     def from_params(cls, p: dict) -> "PIModel":
@@ -113,8 +115,8 @@ class PIModel:
 
 
 def regressors(r: np.ndarray, x: np.ndarray, y0: np.ndarray | None = None) -> np.ndarray:
-    """Operator outputs for the fit (N x m), operators started by Eq. (3) at ``x[0]``."""
-    y0 = np.zeros_like(r) if y0 is None else y0
+    """Operator outputs for the fit (N x m), operators started by Eq. (3) at ``x[0]`` (at rest by default)."""
+    y0 = np.full_like(r, np.nan) if y0 is None else y0
     Y, _ = play.play_response(r, x, play.init(r, x[0], y0))
     return Y
 
@@ -146,10 +148,9 @@ def fit_pi(
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     r = thresholds(n, x_max=float(np.max(np.abs(x))) if len(x) else 1.0)
-    # The valve is taken to rest at the first input (every operator relaxed at x(0)); that
-    # memory is kept as the model's y0, so Eq. (3) continues it on other recordings.
-    y0 = np.full(len(r), x[0]) if len(x) else np.zeros(len(r))
-    Y = regressors(r, x, y0)
+    # The valve is taken to rest at the first input (y0 NaN: every operator at x(0)), the
+    # recording's start as the paper's protocol holds it; predictions start the same way.
+    Y = regressors(r, x)
     if rows is not None:
         Y, y = Y[rows], y[rows]
     m = len(r)
@@ -161,7 +162,7 @@ def fit_pi(
     A = np.column_stack([YD, np.ones(len(y))])
     lb = np.concatenate([np.full(m, min_slope), [-np.inf]]) if constrained else None
     theta = _least_squares(A, y, lb)
-    return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m], y0=y0)
+    return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m])
 
 
 #: Above this condition number of the compressed triangle, compress by QR instead of Cholesky.

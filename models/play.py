@@ -16,10 +16,16 @@ import numpy as np
 from numba import njit
 
 
-def init(r: np.ndarray, x0: float, y0: np.ndarray | float = 0.0) -> np.ndarray:
-    """Initial operator states, Eq. (3)."""
+def init(r: np.ndarray, x0, y0: np.ndarray | float = 0.0) -> np.ndarray:
+    """Initial operator states, Eq. (3).
+
+    A ``y_i0`` of NaN means *at rest*: the operator starts at ``x(0)`` (Eq. 3 with
+    ``y_i0 = x(0)``), the memory of a valve that has been held at its first input.
+    """
     r = np.asarray(r, dtype=np.float64)
-    return np.maximum(x0 - r, np.minimum(x0 + r, np.broadcast_to(y0, r.shape))).astype(np.float64)
+    x0 = np.asarray(x0, dtype=np.float64)
+    y0 = np.where(np.isnan(y0), x0, y0)
+    return np.maximum(x0 - r, np.minimum(x0 + r, y0)).astype(np.float64)
 
 
 def step(r: np.ndarray, state: np.ndarray, x: float) -> np.ndarray:

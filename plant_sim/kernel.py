@@ -10,7 +10,7 @@ implementation. Per plant ``b`` and step ``k`` with commanded duty ``d``
    [-1, 1] (the plunger is seated below it and fully open above it), drives the
    play operators; with ``asymmetric_hysteresis = a`` the descending threshold
    of every operator grows by ``a s h``, ``s = (u + 1)/2`` the position in the
-   range and ``h = sum(w r)/sum(w)`` the model's mean operator half-width, so
+   range and ``h`` the half-width of the model's major loop at mid flow, so
    the descending branch is ``1 + a`` times as wide at full flow (``a = 0``
    is Eq. 1). One lift for all operators keeps the descending flow above the
    symmetric model's: the operators that move on a descent are those of the

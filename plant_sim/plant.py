@@ -217,6 +217,23 @@ def _delay_samples(delay_s: float, rate_hz: float) -> tuple[int, float]:
     return int(math.floor(d)), d - math.floor(d)
 
 
+def _major_loop_half_width(core) -> float:
+    """Half the horizontal gap between the major loop's branches at mid output (normalized input).
+
+    The loop's own geometry, not a weight average: fitted weights of wide operators can be
+    negative, and ``sum(w r) / sum(w)`` then says nothing about the width.
+    """
+    u = np.linspace(-1.0, 1.0, 401)
+    _, s = core.predict(u[::-1], np.full(len(core.r), 1.0))  # come down from the top: on the major loop
+    up, s = core.predict(u, s)
+    down, _ = core.predict(u[::-1], s)
+    down = down[::-1]
+    mid = 0.5 * (up[0] + up[-1])
+    # both branches rise with u for an invertible model; np.interp wants them increasing
+    half = 0.5 * (np.interp(mid, up, u) - np.interp(mid, down, u))
+    return float(max(half, 0.0))
+
+
 def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     """The kernel's parameter vector for one plant at ``rate_hz``."""
     dt = 1.0 / rate_hz
@@ -226,7 +243,7 @@ def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     v[K.OFF] = p.model.core.offset
     v[K.GAIN_LO] = ys.half_range / xs.half_range
     core = p.model.core
-    v[K.ASYM] = p.asymmetric_hysteresis * float(core.w @ core.r / np.sum(core.w))  # a times the mean half-width
+    v[K.ASYM] = p.asymmetric_hysteresis * _major_loop_half_width(core)
     v[K.HEAT_K], v[K.E_TH], v[K.T_AMB], v[K.ALPHA] = (
         p.coil_heating, math.exp(-dt / p.coil_tau_s), p.ambient_c, p.coil_alpha_per_k)
     e_w = math.exp(-dt / p.wander_tau_s)
@@ -286,7 +303,7 @@ class BatchPlant:
         cols = len(self.params) if len(models) > 1 else 1
         self._R = np.zeros((m, cols))
         self._W = np.zeros((m, cols))  # padding operators have zero weight
-        self._Y0 = np.zeros((m, cols))
+        self._Y0 = np.full((m, cols), np.nan)  # NaN: at rest at the first duty (models.play.init)
         for b, p in enumerate(self.params[:cols]):
             core = p.model.core
             self._R[: len(core.r), b] = core.r
@@ -304,7 +321,7 @@ class BatchPlant:
         d0 = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (B,))
         P = self._P
         u0 = np.clip((d0 - P[:, K.XC]) / P[:, K.XH], -1.0, 1.0)
-        play = np.maximum(u0 - self._R, np.minimum(u0 + self._R, self._Y0))  # Eq. (3), shape (m, B)
+        play = np.maximum(u0 - self._R, np.minimum(u0 + self._R, np.where(np.isnan(self._Y0), u0, self._Y0)))  # Eq. (3), (m, B)
         x = np.zeros((B, K.N_STATE))
         x[:, K.S_TEMP] = P[:, K.T_AMB]
         x[:, K.S_U_PREV] = u0
