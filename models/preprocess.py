@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal
 
 #: Rate the fits work at (Hz). Hysteresis is rate-independent; the paper's
 #: protocol changes duty by at most 0.4 %/s, so 10 Hz keeps 0.04 % per sample.
@@ -69,11 +68,15 @@ def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
     sos = _design(round(cutoff_hz / nyq, 12))
     padlen = min(3 * (2 * len(sos) + 1), len(x) - 1)
     sos = sos.copy()  # the cached design stays untouched by scipy
+    from scipy import signal
+
     return signal.sosfiltfilt(sos, x, padlen=max(padlen, 0))
 
 
 @lru_cache(maxsize=32)
 def _design(wn: float) -> np.ndarray:
+    from scipy import signal  # imported here: every verb loads this module, few filter
+
     sos = signal.cheby1(CHEBY_ORDER, CHEBY_RIPPLE_DB, wn, btype="low", output="sos")
     # An even-order Chebyshev I sits at the bottom of its ripple at DC (gain 10^(-rp/20)),
     # squared by filtfilt: rescale to unit DC gain so levels are kept.
