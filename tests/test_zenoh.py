@@ -124,7 +124,9 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     s = json.loads(summ.read_text())
     faults = {f["kind"]: f for f in s["faults"]}
     assert faults["bad_reference"]["count"] > 0 and faults["bad_measurement"]["count"] > 0
-    assert faults["stale"]["count"] == 1  # the kill (a late valve at start-up is `no_measurement`)
+    # The kill is a stale fault (a late valve at start-up is `no_measurement`); a host stall
+    # longer than stale_ms mid-run would rightly add one, so count at least one.
+    assert faults["stale"]["count"] >= 1
     table = rows(rec)
     state = np.array([r[6] for r in table])
     age = np.array([float(r[7]) for r in table])
