@@ -80,3 +80,43 @@ def test_stack_params_refuses_different_structures():
     assert runner.structure(a) != runner.structure(b)
     with pytest.raises(ValueError):
         simulate.stack_params([a, b])
+
+
+def test_sweeps_batched_kalman_candidates_each_agree_with_their_filterpy_design():
+    """ff+kf candidates as the sweep batches them (different noises, lags, delays): each row of the
+    array filter is, step by step, the filterpy KalmanFilter designed for that candidate alone, started
+    at its steady-state covariance (the array filter is the steady-state form)."""
+    import scipy.linalg
+
+    from controller.laws import kalman
+
+    models = {RUN.resolve(RUN[""]["model"]): load_model(RUN.resolve(RUN[""]["model"]))}
+    rows = [{"kf.q_flow_lpm": qf, "kf.q_bias_lpm": qb, "kf.r_lpm": r, "valve.tau_s": tau, "valve.delay_s": d}
+            for qf, qb, r, tau, d in [(0.5, 0.01, 0.5, 0.02, 0.0), (3.0, 0.05, 0.3, 0.01, 0.005),
+                                      (10.0, 0.2, 1.0, 0.03, 0.012)]]
+    kf = simulate.stack_params([runner.build_one(RUN, "ff+kf", r, models)[0] for r in rows]).kf
+    dt = 1.0 / RUN["loop"]["rate_hz"]
+    n, B = 2000, len(rows)
+    refs = []
+    for r in rows:
+        f = kalman.design(r["valve.tau_s"], dt, r["kf.q_flow_lpm"], r["kf.q_bias_lpm"], r["kf.r_lpm"], flow0_lpm=60.0)
+        prior = scipy.linalg.solve_discrete_are(f.F.T, f.H.T, f.Q, f.R)
+        gain = prior @ f.H.T / (f.H @ prior @ f.H.T + f.R)
+        f.P = (np.eye(2) - gain @ f.H) @ prior  # posterior: the next predict gives the steady prior
+        refs.append(f)
+    rng = np.random.default_rng(5)
+    model = 60 + 25 * np.sign(np.sin(np.arange(n) * dt * 2 * np.pi * 1.5))
+    s = kalman.init(kf, np.full(B, 60.0), model0_lpm=np.full(B, model[0]))
+    flow, bias = np.full(B, 60.0), np.array([-6.0, 4.0, 9.0])
+    for k in range(n):
+        m_in = model[np.maximum(k - 1 - kf.delay_steps, 0)]
+        flow = kf.a * flow + (1 - kf.a) * (m_in + bias)
+        z = flow + rng.normal(0, 0.5, B)
+        for j, f in enumerate(refs):
+            f.predict(u=np.array([[m_in[j]]]))
+            f.update(np.array([[z[j]]]))
+        s = kalman.push(kalman.update(kf, s, z), np.full(B, model[k]))
+        np.testing.assert_allclose(s.flow_lpm, [f.x[0, 0] for f in refs], rtol=1e-9)
+        np.testing.assert_allclose(s.bias_lpm, [f.x[1, 0] for f in refs], rtol=1e-9, atol=1e-9)
+    for j, f in enumerate(refs):
+        np.testing.assert_allclose(f.K.ravel(), [kf.k_flow[j], kf.k_bias[j]], rtol=1e-9)
