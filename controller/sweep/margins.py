@@ -185,7 +185,13 @@ class Margins:
 
 
 def loop_margins(p: control.ControllerParams, j: int, op: OperatingPoint, k_model: float | None = None) -> Margins:
-    """Margins of candidate ``j`` of ``p`` around the valve linearized at ``op`` (``k_model``: see :func:`controller_lti`)."""
+    """Margins of candidate ``j`` of ``p`` around the valve linearized at ``op`` (``k_model``: see :func:`controller_lti`).
+
+    A delayed loop crosses -180 degrees and unit gain several times; python-control
+    finds every crossing (``returnall``), and the margins are the worst of them:
+    the least gain margin, and the least phase margin with the phase unwrapped
+    from low frequency (a crossing at -190 degrees is a margin of -10, not 170).
+    """
     import warnings
 
     import control as ct
@@ -196,6 +202,15 @@ def loop_margins(p: control.ControllerParams, j: int, op: OperatingPoint, k_mode
     loop = ct.series(c, plant_tf(op)) if isinstance(c, ct.StateSpace) else c * plant_tf(op)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        gm, pm, *_ = ct.stability_margins(loop)
-    gm_db = 20.0 * math.log10(gm) if gm is not None and np.isfinite(gm) and gm > 0 else math.inf
-    return Margins(gm_db, float(pm) if pm is not None and np.isfinite(pm) else math.inf)
+        gms, _, _, _, wgcs, _ = ct.stability_margins(loop, returnall=True)
+        gms = np.asarray(gms, dtype=np.float64)
+        gm = float(np.min(gms)) if gms.size else math.inf
+        wgcs = np.asarray(wgcs, dtype=np.float64)
+        pm = math.inf
+        if wgcs.size:
+            nyquist = math.pi / op.dt_s
+            w = np.geomspace(nyquist * 1e-6, nyquist, 20000)
+            phase = np.unwrap(np.angle(np.asarray(loop(np.exp(1j * w * op.dt_s))).ravel()))
+            pm = float(np.min(180.0 + np.degrees(np.interp(wgcs, w, phase))))
+    gm_db = 20.0 * math.log10(gm) if np.isfinite(gm) and gm > 0 else math.inf
+    return Margins(gm_db, pm)
