@@ -200,15 +200,16 @@ def loop_margins(p: control.ControllerParams, j: int, op: OperatingPoint, k_mode
     if c is None:
         return Margins(math.inf, math.inf)
     loop = ct.series(c, plant_tf(op)) if isinstance(c, ct.StateSpace) else c * plant_tf(op)
+    nyquist = math.pi / op.dt_s
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        gms, _, _, _, wgcs, _ = ct.stability_margins(loop, returnall=True)
+        # epsw: an integrator's loop "crosses" at w = 0, where its gain is infinite; not a margin
+        gms, _, _, _, wgcs, _ = ct.stability_margins(loop, returnall=True, epsw=1e-6 * nyquist)
         gms = np.asarray(gms, dtype=np.float64)
         gm = float(np.min(gms)) if gms.size else math.inf
         wgcs = np.asarray(wgcs, dtype=np.float64)
         pm = math.inf
         if wgcs.size:
-            nyquist = math.pi / op.dt_s
             w = np.geomspace(nyquist * 1e-6, nyquist, 20000)
             phase = np.unwrap(np.angle(np.asarray(loop(np.exp(1j * w * op.dt_s))).ravel()))
             pm = float(np.min(180.0 + np.degrees(np.interp(wgcs, w, phase))))
