@@ -9,8 +9,9 @@ the PI still fits with r >= 0.998 and what is left of the effect is about
 as big as the noise.
 
 Excitations are plant_sim's protocols over the valve's open range (duty
-40-75 %: the forward model itself closes near 36 %, which is a dead zone of
-its own; dead-zone cases go down to 30 %). The coil temperature column is
+40-72 %: the forward model itself closes near 35.6 %, a dead zone of its own,
+and is flat above 72 %, a saturation of its own; dead-zone cases go down to
+36 %). The coil temperature column is
 dropped (a bench rarely has it; the detector then has to infer the thermal
 state from the duty history), the supply pressure column is kept.
 """
@@ -40,6 +41,9 @@ COIL_TAU_S = 60.0
 #: Top of the excitations (%): the identified range of the forward model ends at 72 %, above
 #: it the model is flat (full open), a saturation of its own.
 HI_PCT = 72.0
+
+#: Lowest duty of dead-zone cases (%): below the cracking duty sought, above the forward model's own closing.
+DEAD_ZONE_LO_PCT = 36.0
 
 WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dynamics", "transport_delay",
          "dead_zone", "saturation", "creep", "sensor_offset")
@@ -81,7 +85,7 @@ class Case:
 
     @property
     def lo_pct(self) -> float:
-        return 30.0 if "dead_zone" in self.words else 40.0
+        return DEAD_ZONE_LO_PCT if "dead_zone" in self.words else 40.0
 
     def label(self) -> str:
         eff = "+".join(f"{w}={v:.4g}" for w, v in self.effects) or "none"
@@ -136,7 +140,7 @@ def size_effect(word: str, target_rms: float, exc: str, seed: int, lo: float, it
             a, b = (m, b) if effect_rms(word, m, exc, seed, lo) > target_rms else (a, m)
         return 0.5 * (a + b)
     if word == "dead_zone":
-        a, b = 36.0, 60.0
+        a, b = lo, 60.0
     else:
         # from a tenth of the plausible low end: where switching the effect on is already
         # bigger than the target (a sampled lag delays by a sample), the case is not concealed
@@ -149,7 +153,7 @@ def size_effect(word: str, target_rms: float, exc: str, seed: int, lo: float, it
 
 def make_case(words: tuple, exc: str, seed: int, noise: float, size: float = 1.0) -> Case:
     """A case with ``words`` sized to ``size`` x noise each (sensor offset cases use the model file)."""
-    lo = 30.0 if "dead_zone" in words else 40.0
+    lo = DEAD_ZONE_LO_PCT if "dead_zone" in words else 40.0
     eff = tuple((w, size_effect(w, size * noise, exc, seed, lo)) for w in words)
     return Case(eff, exc, seed, noise, with_model="sensor_offset" in words, size=size)
 

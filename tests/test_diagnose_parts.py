@@ -73,11 +73,21 @@ def test_effective_duty_and_pressure_gain():
     assert g == pytest.approx((3.2 + fx.P_ATM_BAR) / (3.0 + fx.P_ATM_BAR))  # choked: absolute pressure
 
 
-def test_creep_term_relaxes_a_step():
-    q = np.r_[np.zeros(5), np.full(400, 10.0)]
-    c = fx.creep_term(q, 10.0, 5.0)
-    k = np.arange(400)
-    np.testing.assert_allclose(c[5:], 10.0 * np.exp(-k / 50.0), atol=1e-9)
+def test_creep_drifts_after_each_reversal_by_the_last_step():
+    q = np.r_[np.linspace(10, 50, 100), np.linspace(50, 20, 100), np.full(600, 20.0)]
+    direction = np.r_[np.ones(100), -np.ones(700)]
+    direction[0] = 0
+    s = fx.reversal_step(q, direction)
+    assert np.all(s[:100] == 0)  # before the second reversal there is no reversal-to-reversal step
+    z = fx.creep(q, direction, 10.0, 5.0)
+    assert np.all(z == 0)  # one reversal only
+    direction2 = np.r_[direction[:200], np.ones(600)]  # reverses again at the bottom
+    s2 = fx.reversal_step(q, direction2)
+    assert s2[-1] == pytest.approx(20.0 - 50.0)  # went down by 30 L/min between the reversals
+    z2 = fx.creep(q, direction2, 10.0, 5.0)
+    k = np.arange(600)
+    # tau dz/dt = s - z from the reversal on: z = s (1 - exp(-t / tau)), a sample late (ZOH)
+    np.testing.assert_allclose(z2[200:], -30.0 * (1 - np.exp(-k / 50.0)), atol=1e-9)
 
 
 def test_descending_excess_only_on_descending_branch():

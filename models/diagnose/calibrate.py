@@ -25,7 +25,7 @@ PATH = Path(__file__).with_name("margins.json")
 #: Margin over the largest effect-free gain.
 SAFETY = 1.5
 #: Smallest margin on the relative fall of the held-out squared error.
-FLOOR = 0.01
+FLOOR = 0.03
 #: Folds (of 6) whose held-out error must fall (a majority).
 MIN_WINS = 4
 

@@ -10,8 +10,10 @@ The hysteresis core is the baseline's, with its weights as fitted: a PI of
 50 operators refitted on 5/6 of the training blocks is far less stable on
 the sixth (rare excursions set the states of the wide operators) than the
 effects it is meant to reveal. With a baseline fitted on the recording its
-prediction enters with a free *gain*, *offset* and *loop width* (the ways a
-baseline fitted with an effect present has bent to absorb it on average);
+prediction enters with a free *gain*, *offset*, *loop width* and *duty
+scale* (``x dq/dx``: the response to a constant change of the coil current),
+the ways a baseline fitted with an effect present has bent to absorb it on
+average;
 with a model file the model's prediction is held fixed in ``F``. Each linear
 effect adds one column (asymmetric width, coil heating, creep amplitude,
 sensor offset). Whole-flow transforms (dead zone, supply-pressure gain,
@@ -34,6 +36,7 @@ from ..pi import PIModel, fit_pi
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
+from .residuals import branch
 from .signals import Signals
 
 #: Relative ridge on the normal equations (keeps a column that is all zero harmless).
@@ -86,7 +89,10 @@ class Base:
             ops = pi_columns(self.shape.r, x_unit)
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
             excess = fx.descending_excess(ops, x_unit, self.shape.w) * self.y_half
-            eps = 1e-3  # relative duty step of the central difference
+            # relative duty step of the central difference: about one threshold spacing of a 50-operator
+            # PI (a fitted PI's slope within one segment is its noisiest feature) and the size of the
+            # current changes it stands for (0.393 %/K x a few K)
+            eps = 0.01
             slope = (self.model.predict(x * (1 + eps))[0] - self.model.predict(x * (1 - eps))[0]) / (2 * eps)
             if len(self.cache) > 8:
                 self.cache.clear()
@@ -111,7 +117,8 @@ class Design:
     X : ndarray, shape (N, p)
         Free columns; ``theta`` in L/min per column unit.
     names : tuple of str
-        Column names: ``gain``, ``offset`` and ``loop_width`` (refitted baseline), then effect words.
+        Column names: ``gain``, ``offset``, ``loop_width`` and ``duty_scale`` (refitted baseline),
+        then effect words.
     fit_ok : ndarray of bool
         Rows the fit may use (saturated rows are left to the clip).
     clip_hi : float or None
@@ -155,8 +162,8 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     names: list[str] = []
     cols = []
     if base.refit:
-        cols += [F, np.ones(n), loop]
-        names += ["gain", "offset", "loop_width"]
+        cols += [F, np.ones(n), loop, slope]
+        names += ["gain", "offset", "loop_width", "duty_scale"]
         F = np.zeros(n)
     if "asymmetric_hysteresis" in chain:
         cols.append(excess * np.clip(ref, 0.0, None) / fx.FULL_FLOW_LPM)
@@ -170,8 +177,7 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     F, X, ref = (dynamics(v, rate, chain) for v in (F, X, ref))
     extra = []
     if "creep" in chain:
-        # the column is the unrelaxed flow change; its coefficient is minus the creep amplitude
-        extra.append(fx.creep_term(ref, rate, chain["creep"]["tau_s"]))
+        extra.append(fx.creep(ref, branch(sig.duty_pct), rate, chain["creep"]["tau_s"]))
         names.append("creep")
     if "sensor_offset" in chain:
         extra.append(np.ones(n))
@@ -189,17 +195,19 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
 def heating_column(sig: Signals, params: dict, slope: np.ndarray) -> np.ndarray:
     """Flow change per kelvin of steady rise at 55 % duty (L/min/K), to first order in the resistance change.
 
-    The effective duty is ``x (1 + a T_mean) / (1 + a T)`` (:func:`effects.effective_duty`),
-    about ``x (1 - a (T - T_mean))``; with the measured coil temperature the column is per
-    kelvin of that temperature instead (its coefficient is then 1 for the copper law).
+    The effective duty is ``x / (1 + a T)`` (:func:`effects.effective_duty`, the
+    model's own coil temperature as reference), about ``x (1 - a T)``. A cold
+    start (``start`` = 0) or a coil already at its steady rise for the first
+    duty (``start`` = 1). With the measured coil temperature the column is per
+    kelvin of its rise since the first sample (coefficient 1 for the copper law).
     """
     if sig.coil_temp_c is not None:
-        rise = sig.coil_temp_c
+        rise = sig.coil_temp_c - sig.coil_temp_c[0]
     else:
         x = sig.duty_pct
         steady0 = (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
         rise = fx.coil_temperature_rise(x, sig.rate_hz, params["tau_s"], 1.0, params.get("start", 1.0) * steady0)
-    return -fx.ALPHA_CU_PER_K * (rise - np.mean(rise)) * slope
+    return -fx.ALPHA_CU_PER_K * rise * slope
 
 
 def dynamics(v: np.ndarray, rate_hz: float, chain: dict) -> np.ndarray:

@@ -71,11 +71,11 @@ def _always(sig, base):
 
 
 def _dead_zone_grid(sig: Signals, base: Base) -> dict:
-    lo = float(np.min(sig.duty_pct))
-    hi = float(np.percentile(sig.duty_pct, 40))
-    c = np.unique(np.round(np.linspace(lo, hi, 14)[1:], 2))
-    frac = np.array([np.mean(sig.duty_pct <= v) for v in c])
-    return {"cracking_pct": c[(frac >= 0.01) & (c <= 50.0)]}
+    # cracking duties just above the low duty quantiles: each masks the rows at or below one
+    # of them, so a held level right at the cracking duty is either shut or open, not both
+    q = np.percentile(sig.duty_pct, [0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
+    c = np.unique(q) + 1e-6
+    return {"cracking_pct": c[c <= 50.0]}
 
 
 def _saturation_grid(sig: Signals, base: Base) -> dict:
@@ -138,7 +138,8 @@ EFFECTS = {
         "saturation", "flow clipped at the full-open flow",
         {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, _saturation_grid),
     "creep": Effect(
-        "creep", "after each change the flow creeps on by a fraction a of it: q - a (q - lag_tau(q))",
+        "creep", "after each reversal the flow drifts on the way it went, to a fraction a of the last "
+        "reversal-to-reversal step, first order with tau",
         {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
         {"amplitude": (0.003, 0.5), "tau_s": (0.3, 1000.0)},
         lambda sig, base: {"tau_s": np.geomspace(0.5, min(400.0, (sig.t_s[-1] - sig.t_s[0]) / 4), 11)}),
@@ -239,7 +240,7 @@ def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, s
     if word == "asymmetric_hysteresis":
         p["extra_width"] = float(coef[word])
     elif word == "creep":
-        p["amplitude"] = -float(coef[word])  # the column is q - lag(q); creeping on is a negative coefficient
+        p["amplitude"] = float(coef[word])
     elif word == "coil_heating" and sig.coil_temp_c is not None:
         p["copper_law_ratio"] = float(coef[word])  # 1: the measured temperature explains it by 0.393 %/K
         p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
@@ -259,8 +260,6 @@ def implausible(word: str, params: dict) -> str | None:
     for k, (lo, hi) in EFFECTS[word].plausible.items():
         if k in params:
             v = params[k]
-            if word == "creep" and k == "amplitude":
-                v = abs(v)  # creeping back (relaxation) is the same law with the other sign
             if not lo <= v <= hi:
                 bad.append(f"{k} = {params[k]:.4g} outside {lo:g}..{hi:g} {EFFECTS[word].units[k]}")
     return "; ".join(bad) or None

@@ -4,9 +4,9 @@ Each function is one law, written from the physics of a proportional
 solenoid valve and its flow sensor, in physical units. The augmented model
 (:mod:`models.diagnose.design`) chains them around the hysteresis core::
 
-    duty -> transport delay -> coil heating (effective duty) -> hysteresis
+    duty -> coil heating (effective duty) -> hysteresis
          -> dead zone, asymmetric descending branch -> supply pressure gain
-         -> plunger/flow lag -> creep -> saturation -> + sensor offset
+         -> transport delay, plunger/flow lag -> creep -> saturation -> + sensor offset
 
 Every function takes whole arrays and is causal, so chunked use only needs
 the initial value (``x0``/``state``) as ``lfilter``'s ``zi`` would.
@@ -120,14 +120,35 @@ def pressure_gain(supply_bar: np.ndarray, ref_bar: float, exponent: float) -> np
     return ((np.asarray(supply_bar) + P_ATM_BAR) / (ref_bar + P_ATM_BAR)) ** exponent
 
 
-def creep_term(flow_lpm: np.ndarray, rate_hz: float, tau_s: float) -> np.ndarray:
-    """Unrelaxed part of the last flow change (L/min): ``q - lag_tau(q)``.
+def reversal_step(flow_lpm: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Signed flow change between the last two reversals (L/min), held until the next reversal.
 
-    After a step or reversal of size ``dq`` it is ``dq exp(-t/tau)``; a flow
-    that creeps on by a fraction ``a`` of each step is ``q - a (q - lag(q))``
-    (Kuhnen's linear creep operator on the hysteresis output).
+    Parameters
+    ----------
+    flow_lpm : ndarray
+        Flow (L/min).
+    direction : ndarray
+        +1 / -1 for the branch the input is on (0 before its first motion);
+        a reversal is where it changes sign.
     """
-    return np.asarray(flow_lpm) - first_order_lag(flow_lpm, rate_hz, tau_s)
+    flow_lpm = np.asarray(flow_lpm, dtype=np.float64)
+    rev = np.flatnonzero((direction[1:] != direction[:-1]) & (direction[:-1] != 0)) + 1
+    out = np.zeros(len(flow_lpm))
+    # the reversal instant is the last sample of the old branch (the extreme of the input)
+    at = flow_lpm[np.maximum(rev - 1, 0)]
+    for j in range(1, len(rev)):
+        out[rev[j]:] = at[j] - at[j - 1]
+    return out
+
+
+def creep(flow_lpm: np.ndarray, direction: np.ndarray, rate_hz: float, tau_s: float) -> np.ndarray:
+    """Creep per unit amplitude (L/min): after each reversal the flow drifts on the way it went,
+    towards the last reversal-to-reversal flow step, with time constant ``tau_s``.
+
+    ``tau dz/dt = s(t) - z`` with ``s`` the :func:`reversal_step`; the creep is
+    ``a z`` for an amplitude ``a`` (fraction of the last reversal step).
+    """
+    return first_order_lag(reversal_step(flow_lpm, direction), rate_hz, tau_s, 0.0)
 
 
 def descending_excess(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.ndarray:

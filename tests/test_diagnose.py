@@ -1,0 +1,84 @@
+"""valvectl diagnose end to end: D.json and P.csv as DESIGN.md fixes them, and a fast subset of the
+concealed-effect suite (bench/bench_diagnose.py runs the whole of it)."""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+S = pytest.importorskip("diagnose_suite")
+
+from controller.cli import main  # noqa: E402
+from models.diagnose import diagnose_response  # noqa: E402
+from models.model import load_model  # noqa: E402
+from models.recording import write_recording  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def free_csv(tmp_path_factory):
+    """An effect-free plant_sim recording, 240 s at 100 Hz."""
+    rec = S.record(S.Case((), "ramps", 7, 0.5))
+    path = tmp_path_factory.mktemp("diag") / "free.csv"
+    write_recording(path, rec.columns)
+    return path
+
+
+def test_cli_outputs_follow_design(free_csv, tmp_path):
+    d_json, p_csv, rep = tmp_path / "D.json", tmp_path / "P.csv", tmp_path / "report"
+    rc = main(["diagnose", str(free_csv), "--json", str(d_json), "--predictions", str(p_csv), "--report", str(rep)])
+    assert rc == 0
+    d = json.loads(d_json.read_text())
+    assert set(d) == {"baseline", "findings", "model"}
+    assert set(d["baseline"]) == {"mae", "rmse", "r"}
+    assert d["baseline"]["r"] >= 0.998
+    assert d["findings"] == []  # effect free
+    with open(p_csv) as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == ["t_s", "flow_lpm", "baseline_lpm", "augmented_lpm", "holdout"]
+    n_rec = sum(1 for _ in open(free_csv)) - 1
+    assert len(rows) - 1 == n_rec
+    data = np.array(rows[1:], dtype=float)
+    hold = data[:, 4]
+    assert set(np.unique(hold)) == {0.0, 1.0} and hold.mean() >= 0.2
+    third = len(hold) // 3
+    assert hold[:third].any() and hold[-third:].any()  # spread over the recording
+    np.testing.assert_array_equal(data[:, 3], data[:, 2])  # augmented = baseline when nothing is found
+    assert (rep / "report.md").exists() and (rep / "residuals.png").exists()
+
+
+def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys):
+    assert main(["diagnose", str(tmp_path / "nope.csv"), "--json", str(tmp_path / "d.json")]) == 2
+    short = tmp_path / "short.csv"
+    write_recording(short, {"t_s": np.arange(50) * 0.1, "duty_pct": np.full(50, 50.0), "flow_lpm": np.ones(50)})
+    assert main(["diagnose", str(short), "--json", str(tmp_path / "d.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "short.csv" in err[1] and "too short" in err[1]
+
+
+CASES = [
+    (("supply_pressure",), "ramps"),
+    (("valve_dynamics",), "sines"),
+    (("asymmetric_hysteresis",), "ramps"),
+    (("sensor_offset",), "random_holds"),
+]
+
+
+@pytest.mark.parametrize("words,exc", CASES, ids=["+".join(w) + "-" + e for w, e in CASES])
+def test_concealed_effect_is_named_and_improves_holdout(words, exc):
+    case = S.make_case(words, exc, seed=4, noise=0.5)
+    rec = S.record(case)
+    model = load_model(S.MODEL_JSON) if case.with_model else None
+    d = diagnose_response(rec, model)
+    assert d.baseline.r >= 0.998  # concealed: the baseline looks fine
+    named = [f.effect for f in d.findings]
+    assert words[0] in named
+    for f in d.findings:
+        assert f.holdout_rmse_after < f.holdout_rmse_before
+    assert np.array_equal(d.augmented_lpm, d.steps_lpm[-1])
