@@ -75,7 +75,12 @@ def test_sweep_writes_table_summary_plot_and_best_config(small, tmp_path, capsys
     i = header.index("iae")
     assert header[i:i + len(figs)] == figs
     assert header[i + len(figs):i + 2 * len(figs)] == [f"worst_{n}" for n in figs]
-    assert rows[0]["controller"] == "ff+kf" and rows[0]["ff_pid.kp"] == ""
+    from controller.config import load_run_config
+
+    run = load_run_config(RUN)
+    word = run[""]["controller"]
+    assert rows[0]["controller"] == word  # the run's own controller, as configured
+    assert rows[0]["ff_pid.kp"] == ("" if word != "ff+pid" else format(run["ff_pid"]["kp"], ".6g"))
     for r in rows:
         assert float(r["worst_iae"]) >= float(r["iae"])
     s = json.loads(js.read_text())
