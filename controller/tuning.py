@@ -39,10 +39,11 @@ class ClosedLoop:
 
 
 def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, rate_hz: float,
-                preview_steps: int = 0, duty0_pct: float = 0.0) -> ClosedLoop:
+                preview_steps: int | np.ndarray = 0, duty0_pct: float = 0.0) -> ClosedLoop:
     """Simulate B candidates against ``plant`` (a ``BatchPlant`` of B valves) over ``ref_lpm`` (N,).
 
-    The feedforward sees the reference ``preview_steps`` ahead (the last value past the end).
+    The feedforward sees the reference ``preview_steps`` ahead (the last value past the end);
+    an array (B,) gives each candidate its own preview.
     """
     dt = 1.0 / rate_hz
     B = params.batch
@@ -52,9 +53,10 @@ def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, ra
     s = control.init(params, meas, duty0_pct)
     n = len(ref_lpm)
     flow, duty = np.empty((n, B)), np.empty((n, B))
-    ahead = np.concatenate([ref_lpm[preview_steps:], np.full(preview_steps, ref_lpm[-1])])
+    preview = np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,))
+    ahead = np.concatenate([ref_lpm, np.full(int(preview.max(initial=0)), ref_lpm[-1])])
     for k in range(n):
-        s, cmd = control.step(params, s, np.full(B, ref_lpm[k]), meas, dt, np.full(B, ahead[k]))
+        s, cmd = control.step(params, s, np.full(B, ref_lpm[k]), meas, dt, ahead[k + preview])
         flow[k], duty[k] = meas, cmd.duty_pct
         ps, out = plant.step(ps, cmd.duty_pct)
         meas = out.flow_lpm.copy()

@@ -52,15 +52,14 @@ def test_batched_sweep_equals_the_live_loop_run_once_per_candidate(word, setting
     ref = sp.reference(run, 0.5)
     plants = sp.plants(run, [{}, {"supply_bar": 2.5, "transport_delay": 0.03}], "test")
     models = {run.resolve(run[""]["model"]): load_model(run.resolve(run[""]["model"]))}
-    rows = [settings, {**settings, "limits.rate_pct_per_s": 2000.0}]
+    rows = [settings, {**settings, "limits.rate_pct_per_s": 2000.0}, {**settings, "valve.delay_s": 0.011}]
     built = [runner.build_one(run, word, r, models) for r in rows]
-    preview_s = built[0][1]
-    steps = int(round(preview_s * rate))
+    steps = np.array([int(round(pv * rate)) for _, pv in built])  # a preview per candidate
     V = len(plants)
     params = simulate.stack_params([p for p, _ in built for _ in range(V)])
-    r = simulate.response(params, plants, ref, rate, run[""]["seed"], steps)
-    ahead = np.concatenate([ref[steps:], np.full(steps, ref[-1])])
-    for c, (p, _) in enumerate(built):
+    r = simulate.response(params, plants, ref, rate, run[""]["seed"], np.repeat(steps, V))
+    for c, (p, preview_s) in enumerate(built):
+        ahead = np.concatenate([ref[steps[c]:], np.full(steps[c], ref[-1])])
         for v, plant in enumerate(plants):
             transport = SimTransport(Plant(plant, rate, seed=run[""]["seed"]), run.loop.safe_duty_pct)
             res = Loop(p, transport, IndexedReference(ref, ahead, rate, preview_s), run.loop, clock=SimClock()).run(0.5)

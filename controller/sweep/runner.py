@@ -36,7 +36,7 @@ class Chunk:
     plants: list
     ref_lpm: np.ndarray
     rate_hz: float
-    preview_steps: int
+    preview_steps: np.ndarray  # per candidate
     seed: int
 
 
@@ -64,7 +64,7 @@ def simulate_chunk(c: Chunk) -> dict:
     V = len(c.plants)
     params = simulate.stack_params([p for p in c.params for _ in range(V)])
     with one_blas_thread():
-        r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, c.preview_steps)
+        r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, np.repeat(c.preview_steps, V))
         return simulate.figures(r, V)
 
 
@@ -122,7 +122,7 @@ def build_many(b: Build) -> list:
 
 def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, scheduler: str | None = None,
               workers: int | None = None):
-    """``(chunks, candidate indices per chunk)``: candidates built (in parallel), grouped by structure and preview."""
+    """``(chunks, candidate indices per chunk)``: candidates built (in parallel), grouped by structure."""
     run, cands = s.run, s.candidates
     rate = run["loop"]["rate_hz"]
     pairs = [(cands.controller[i], cands.row(i)) for i in range(len(cands))]
@@ -132,13 +132,14 @@ def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, sche
     built = [x for part in map_chunks(build_many, blocks, [len(b.rows) for b in blocks], scheduler, workers,
                                       desc="build") for x in part]
     groups = {}
-    for i, (p, preview) in enumerate(built):
-        groups.setdefault((structure(p), int(round(preview * rate))), []).append(i)
+    for i, (p, _) in enumerate(built):
+        groups.setdefault(structure(p), []).append(i)
     per = max(1, s.chunk_loops // len(plants))
-    parts = [(preview, idx[a:a + per]) for (_, preview), idx in groups.items() for a in range(0, len(idx), per)]
-    parts.sort(key=lambda p: -len(p[1]))  # largest first: the pool's workers finish together
-    chunks = [Chunk([built[i][0] for i in part], plants, ref, rate, preview, run[""]["seed"]) for preview, part in parts]
-    return chunks, [part for _, part in parts]
+    parts = [idx[a:a + per] for idx in groups.values() for a in range(0, len(idx), per)]
+    parts.sort(key=len, reverse=True)  # largest first: the pool's workers finish together
+    chunks = [Chunk([built[i][0] for i in part], plants, ref, rate,
+                    np.array([int(round(built[i][1] * rate)) for i in part]), run[""]["seed"]) for part in parts]
+    return chunks, parts
 
 
 def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None = None) -> SweepResult:

@@ -78,8 +78,11 @@ class Response:
 
 
 def response(params: control.ControllerParams, plants: list, ref_lpm: np.ndarray, rate_hz: float,
-             seed: int = 0, preview_steps: int = 0) -> Response:
-    """Simulate ``params`` (batch C V, candidate-major) on the V ``plants`` (PlantParams) repeated C times."""
+             seed: int = 0, preview_steps: int | np.ndarray = 0) -> Response:
+    """Simulate ``params`` (batch C V, candidate-major) on the V ``plants`` (PlantParams) repeated C times.
+
+    ``preview_steps``: how far ahead the feedforward reads the reference, one for all or one per loop.
+    """
     from plant_sim.plant import BatchPlant
 
     V = len(plants)
