@@ -98,7 +98,10 @@ def step_figures(flow_lpm: np.ndarray, tr: Transition, dt_s: float, band_frac: f
     progress = sign * (y - tr.before_lpm) / abs(delta)  # 0 at the old level, 1 at the new
     overshoot = np.maximum(np.max(sign * (y - tr.after_lpm), axis=1), 0.0)
     t90 = _first_crossing_s(progress, 0.9, dt_s)
-    rise = np.where(np.isinf(t90), np.inf, t90 - _first_crossing_s(progress, 0.1, dt_s))
+    t10 = _first_crossing_s(progress, 0.1, dt_s)
+    rise = np.full_like(t90, np.inf)
+    reached = np.isfinite(t90)  # reaching 90 % passes 10 % first
+    rise[reached] = t90[reached] - t10[reached]
     # Settling: reverse time, find where the error first leaves the band, i.e. the last exit.
     err = np.abs(y - tr.after_lpm)[:, ::-1]
     band = band_frac * abs(delta)
