@@ -66,10 +66,11 @@ def test_batched_sweep_equals_the_live_loop_run_once_per_candidate(word, setting
             cols = res.columns
             np.testing.assert_array_equal(r.flow_lpm[c * V + v], cols["flow_lpm"])
             np.testing.assert_array_equal(r.duty_pct[c * V + v], cols["duty_pct"])
-            # and the sweep's IAE is the run summary's
-            iae = simulate.figures(r, V)["iae"][c, v]
-            assert iae == pytest.approx(tracking(cols["t_s"], cols["ref_lpm"], cols["flow_lpm"],
-                                                 np.ones(len(ref), bool))["iae"], rel=1e-12)
+            # and the sweep's IAE and steady MAE are the run summary's
+            figs = simulate.figures(r, V)
+            summ = tracking(cols["t_s"], cols["ref_lpm"], cols["flow_lpm"], np.ones(len(ref), bool))
+            assert figs["iae"][c, v] == pytest.approx(summ["iae"], rel=1e-12)
+            assert figs["steady_mae_lpm"][c, v] == pytest.approx(summ["steady_mae_lpm"], rel=1e-12)
 
 
 def test_stack_params_refuses_different_structures():

@@ -8,7 +8,8 @@ every ``dt_s``; flows and duties are arrays of shape (B, N).
   ``valvectl run``'s ``tracking.iae``;
 - ``ise``: integral of (ref - flow)² dt, (L/min)² s;
 - ``steady_mae_lpm``: mean |ref - flow| over the samples where the reference
-  has been constant for at least 100 ms (DESIGN.md's ``steady_mae_lpm``);
+  has been constant for at least 100 ms (DESIGN.md's ``steady_mae_lpm``, the
+  run summary's mask :func:`controller.run_summary.steady_mask`);
 - ``duty_tv``: total variation of the duty, sum |duty[k] - duty[k-1]|, % (the
   control effort: how much the coil and the plunger are worked);
 - step figures, per transition of the reference between two holds (runs of
@@ -35,7 +36,6 @@ import numpy as np
 
 #: CSV column order of the figures (DESIGN.md, sweep).
 NAMES = ("iae", "ise", "overshoot_lpm", "rise_ms", "settle_ms", "steady_mae_lpm", "duty_tv")
-STEADY_HOLD_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -142,8 +142,10 @@ def tracking_figures(ref_lpm, flow_lpm, duty_pct, dt_s: float, step_flow_lpm=Non
     y = np.atleast_2d(np.asarray(flow_lpm, dtype=np.float64))
     u = np.atleast_2d(np.asarray(duty_pct, dtype=np.float64))
     ys = y if step_flow_lpm is None else np.atleast_2d(np.asarray(step_flow_lpm, dtype=np.float64))
+    from controller.run_summary import steady_mask
+
     e = ref - y
-    steady = steady_mask(ref, dt_s)
+    steady = steady_mask(np.arange(len(ref)) * dt_s, ref)
     out = {
         "iae": np.sum(np.abs(e), axis=1) * dt_s / 60.0,
         "ise": np.sum(e * e, axis=1) * dt_s,
@@ -158,14 +160,6 @@ def tracking_figures(ref_lpm, flow_lpm, duty_pct, dt_s: float, step_flow_lpm=Non
     else:
         out["overshoot_lpm"] = out["rise_ms"] = out["settle_ms"] = np.full(len(y), np.nan)
     return {k: out[k] for k in NAMES}
-
-
-def steady_mask(ref_lpm: np.ndarray, dt_s: float, hold_s: float = STEADY_HOLD_S) -> np.ndarray:
-    """True where the reference has been constant for at least ``hold_s`` (DESIGN.md ``steady_mae_lpm``)."""
-    ref = np.asarray(ref_lpm, dtype=np.float64)
-    changed = np.concatenate([[True], np.diff(ref) != 0.0])
-    last_change = np.maximum.accumulate(np.where(changed, np.arange(len(ref)), 0))
-    return (np.arange(len(ref)) - last_change) * dt_s >= hold_s - 1e-12
 
 
 def worst_case(figures_by_variant: dict) -> dict:
