@@ -59,7 +59,8 @@ def main() -> None:
         xs, ys = Scaling.from_data(rec.duty_pct), Scaling.from_data(rec.flow_lpm)
         xu, yu = xs.to_unit(pre.x), ys.to_unit(pre.y)
         rr = thresholds(50, float(np.max(np.abs(xu))))[1:]
-        Y, _ = play.play_response_numpy(rr, xu, play.init(rr, xu[0]))
+        # same start as valvectl's fit (at rest at the first input), so only the model differs
+        Y, _ = play.play_response_numpy(rr, xu, play.init(rr, xu[0], np.nan))
         ww, *_ = np.linalg.lstsq(Y, yu, rcond=None)
         return PIModel(r=rr, w=ww), xs, ys
 
