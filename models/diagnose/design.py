@@ -133,12 +133,7 @@ class Design:
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
         """``min(F + X theta, clip_hi)`` for one ``theta`` (p,) or several (p, K) -> (N,) or (N, K)."""
-        return self.predict_rows(theta, slice(None))
-
-    def predict_rows(self, theta: np.ndarray, rows) -> np.ndarray:
-        """:meth:`predict` on the rows ``rows`` only."""
-        F = self.F[rows]
-        q = (F if theta.ndim == 1 else F[:, None]) + self.X[rows] @ theta
+        q = (self.F if theta.ndim == 1 else self.F[:, None]) + self.X @ theta
         return q if self.clip_hi is None else np.minimum(q, self.clip_hi)
 
 
@@ -251,42 +246,47 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return cho_solve(cho_factor(A + lam * np.eye(p)), b)
 
 
-def _fold_grams(X: np.ndarray, r: np.ndarray, seg: list) -> tuple:
-    """``X^T X``, ``X^T r`` and ``r^T r`` over each row segment."""
-    A = np.stack([X[i].T @ X[i] for i in seg])
-    b = np.stack([X[i].T @ r[i] for i in seg])
-    c = np.array([r[i] @ r[i] for i in seg])
-    return A, b, c
+def _gram(U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """``U^T V`` for tall, narrow blocks without BLAS threads (which spin against other processes
+    on a shared machine at these sizes)."""
+    return np.einsum("np,nq->pq", U, V)
 
 
 def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
     """Fit on all folds but one (least squares), predict every fold; for each left-out fold.
 
-    Without a clip the squared errors follow from per-fold normal equations
-    (``e^T e = c - 2 theta^T b + theta^T A theta``), so no prediction is formed.
+    Rows are gathered once in fold order, so each fold's normal equations are
+    sums over one contiguous slice. Without a clip the squared errors follow
+    from them too (``e^T e = c - 2 theta^T b + theta^T A theta``), so no
+    prediction is formed.
     """
     K = folds.k
-    seg_all = folds.segments()
-    fit_rows = folds.fit_ok & design.fit_ok
-    seg_fit = [i[fit_rows[i]] for i in seg_all]
-    resid = y - design.F
-    p = design.X.shape[1]
+    order, edges = folds.fold_order()
+    sl = [slice(edges[k], edges[k + 1]) for k in range(K)]
+    Xo = design.X[order]
+    ro = (y - design.F)[order]
+    w = (folds.fit_ok & design.fit_ok)[order].astype(np.float64)
+    Xw = Xo * w[:, None]
+    p = Xo.shape[1]
     if p:
-        A, b, _ = _fold_grams(design.X, resid, seg_fit)
+        A = np.stack([_gram(Xw[i], Xo[i]) for i in sl])
+        b = np.stack([np.einsum("n,np->p", ro[i], Xw[i]) for i in sl])
         At, bt = A.sum(axis=0), b.sum(axis=0)
         theta = np.column_stack([_solve(At - A[k], bt - b[k]) for k in range(K)])
     else:
         theta = np.zeros((0, K))
     if design.clip_hi is None:
-        Aa, ba, ca = _fold_grams(design.X, resid, seg_all)
+        Aa = np.stack([_gram(Xo[i], Xo[i]) for i in sl])
+        ba = np.stack([np.einsum("n,np->p", ro[i], Xo[i]) for i in sl])
+        ca = np.array([np.einsum("n,n->", ro[i], ro[i]) for i in sl])
         # sse[k, j] for theta_k on fold j
         sse = ca[None, :] - 2.0 * (theta.T @ ba.T) + np.einsum("pk,jpq,qk->kj", theta, Aa, theta)
     else:
-        sse = np.empty((K, K))
-        for j, i in enumerate(seg_all):
-            e = design.predict_rows(theta, i) - y[i][:, None]
-            sse[:, j] = np.sum(e * e, axis=0)
-    return CVResult(sse, np.array([len(i) for i in seg_all]))
+        Fo, yo = design.F[order], y[order]
+        q = np.minimum(Fo[:, None] + Xo @ theta, design.clip_hi)
+        e2 = (q - yo[:, None]) ** 2
+        sse = np.stack([e2[i].sum(axis=0) for i in sl], axis=1)
+    return CVResult(sse, np.diff(edges))
 
 
 def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -133,12 +133,13 @@ def reversal_step(flow_lpm: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """
     flow_lpm = np.asarray(flow_lpm, dtype=np.float64)
     rev = np.flatnonzero((direction[1:] != direction[:-1]) & (direction[:-1] != 0)) + 1
-    out = np.zeros(len(flow_lpm))
     # the reversal instant is the last sample of the old branch (the extreme of the input)
     at = flow_lpm[np.maximum(rev - 1, 0)]
-    for j in range(1, len(rev)):
-        out[rev[j]:] = at[j] - at[j - 1]
-    return out
+    step = np.concatenate([[0.0], np.diff(at)])  # step j holds from reversal j on (none before the second)
+    which = np.full(len(flow_lpm), -1)
+    which[rev] = np.arange(len(rev))
+    np.maximum.accumulate(which, out=which)
+    return np.where(which >= 0, step[np.maximum(which, 0)], 0.0)
 
 
 def creep(flow_lpm: np.ndarray, direction: np.ndarray, rate_hz: float, tau_s: float) -> np.ndarray:

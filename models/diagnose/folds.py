@@ -65,13 +65,14 @@ class Folds:
         """Rows a final model may be fitted on (training blocks, guards removed)."""
         return (self.fold >= 0) & self.fit_ok
 
-    def segments(self) -> list:
-        """Row indices of each cross-validation fold (cached)."""
-        seg = self.__dict__.get("_segments")
-        if seg is None:
+    def fold_order(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cross-validation rows in fold order and the fold edges in that order (cached)."""
+        cached = self.__dict__.get("_order")
+        if cached is None:
             seg = [np.flatnonzero(self.fold == k) for k in range(self.k)]
-            object.__setattr__(self, "_segments", seg)
-        return seg
+            cached = (np.concatenate(seg), np.cumsum([0] + [len(i) for i in seg]))
+            object.__setattr__(self, "_order", cached)
+        return cached
 
     def holdout_at(self, t_s: np.ndarray) -> np.ndarray:
         """Holdout flag for samples at times ``t_s`` (any rate) from the block edges."""
