@@ -87,7 +87,7 @@ def _heating_grid(sig: Signals, base: Base) -> dict:
     if sig.coil_temp_c is not None:
         return {}
     dur = sig.t_s[-1] - sig.t_s[0]
-    tau = np.geomspace(5.0, 1500.0, 11)
+    tau = np.geomspace(20.0, 2000.0, 11)  # a solenoid coil warms over minutes
     # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
     return {"tau_s": tau[tau <= 2.0 * dur], "start": np.array([0.0, 1.0])}
 
@@ -117,7 +117,7 @@ EFFECTS = {
         "to first order",
         {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
          "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K"},
-        {"rise55_k": (0.05, 200.0), "tau_s": (2.0, 3600.0), "copper_law_ratio": (0.3, 3.0)}, _heating_grid),
+        {"rise55_k": (0.05, 200.0), "tau_s": (10.0, 3600.0), "copper_law_ratio": (0.3, 3.0)}, _heating_grid),
     "supply_pressure": Effect(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column",
         {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
@@ -254,6 +254,28 @@ def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, s
     return p
 
 
+#: Search-range ends where an effect's time constant is not resolved, so its law cannot be told
+#: from a static one: heating faster than the lower end is a static gain error, creep or a lag
+#: slower than the upper end is a persistent offset or a drift.
+UNRESOLVED = {"coil_heating": ("tau_s", "low"), "creep": ("tau_s", "high"),
+              "valve_dynamics": ("tau_s", "high"), "transport_delay": ("delay_s", "high")}
+
+
+def unresolved(word: str, params: dict, sig: Signals, base: Base) -> str | None:
+    """Why the effect's time constant is not resolved (at the end of its search range), or None."""
+    if word not in UNRESOLVED:
+        return None
+    key, side = UNRESOLVED[word]
+    grid = EFFECTS[word].grid(sig, base).get(key)
+    if grid is None or key not in params:
+        return None
+    lo, hi = float(np.min(grid)), float(np.max(grid))
+    v = params[key]
+    if (side == "low" and v <= lo * 1.05) or (side == "high" and v >= hi / 1.05):
+        return f"{key} = {v:.4g} at the {side} end of its search range ({lo:.4g}..{hi:.4g}): not resolved"
+    return None
+
+
 def implausible(word: str, params: dict) -> str | None:
     """Why the parameters are not physical for the effect, or None."""
     bad = []
@@ -331,9 +353,9 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
             chain = {**sel.chain, c.word: params}
             d = build(base, sig, chain)
             phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
-            why = implausible(c.word, phys)
+            why = implausible(c.word, phys) or unresolved(c.word, phys, sig, base)
             if why:
-                sel.rejected[c.word] = f"fits better but is not physical: {why}"
+                sel.rejected[c.word] = f"fits better but is not physical or not resolved: {why}"
                 continue
             c.params = params
             accepted = (c, chain, phys)
