@@ -151,8 +151,9 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     chain = {}
     for step in sel.steps:
         chain = {**chain, step.word: sel.chain[step.word]}
-        theta = fit_final(build(base, sig, chain), sig.flow_lpm, folds.train)
-        preds.append(build(base, raw, chain).predict(theta))
+        # each step's own baseline (refitted without the rows a dead zone or saturation explains)
+        theta = fit_final(build(step.base, sig, chain), sig.flow_lpm, folds.train)
+        preds.append(build(step.base, raw, chain).predict(theta))
     findings = []
     for i, step in enumerate(sel.steps):
         before, after = preds[i], preds[i + 1]

@@ -325,3 +325,17 @@ def flow_gain(sig: Signals, chain: dict) -> np.ndarray:
     if "supply_pressure" in chain and sig.supply_bar is not None:
         g = g * fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), chain["supply_pressure"]["exponent"])
     return g
+
+
+def refit_rows(base: Base, sig: Signals, rows: np.ndarray) -> Base:
+    """The baseline PI refitted (the paper's constrained fit) on ``rows`` only.
+
+    A static nonlinearity at the end of the range (a dead zone, a saturation)
+    bends a PI fitted through it; once the effect's law predicts the shut or
+    saturated rows, the PI is refitted without them.
+    """
+    m = base.model
+    core = fit_pi(m.x_scale.to_unit(sig.duty_pct), m.y_scale.to_unit(sig.flow_lpm), n=len(m.core.r) - 1, rows=rows)
+    model = FittedModel("pi", core, m.x_scale, m.y_scale, meta={**m.meta, "refitted": "without shut/saturated rows"})
+    return Base(True, model, core, m.x_scale)
+

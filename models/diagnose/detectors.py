@@ -27,7 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from . import effects as fx
 from .calibrate import Margins
-from .design import Base, CVResult, Design, build, cross_validate, fit_final
+from .design import Base, CVResult, Design, build, cross_validate, fit_final, flow_gain, refit_rows
 from .folds import Folds
 from .signals import Signals
 
@@ -180,6 +180,11 @@ class Candidate:
     params: dict
     test_before: np.ndarray
     test_after: np.ndarray
+    base: Base | None = None
+
+
+#: Static effects at the end of the range: the baseline is refitted without the rows they explain.
+STATIC = ("dead_zone", "saturation")
 
 
 def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds) -> Candidate:
@@ -191,8 +196,16 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
     pick = np.argmin(train, axis=0)                        # per fold, chosen on its training rows
     after = test[pick, np.arange(folds.k)]
     best = points[int(np.argmin(train.sum(axis=1)))]
+    new_base = None
+    if word in STATIC and base.refit:
+        ch = {**chain, word: best}
+        d = build(base, sig, ch)
+        refit = refit_rows(base, sig, folds.train & d.fit_ok & (flow_gain(sig, ch) > 0))
+        cv = cross_validate(build(refit, sig, ch), sig.flow_lpm, folds)
+        if cv.test.sum() < after.sum():
+            after, new_base = cv.test, refit
     gain = 1.0 - after.sum() / before.test.sum()
-    return Candidate(word, float(gain), int(np.sum(after < before.test)), dict(best), before.test, after)
+    return Candidate(word, float(gain), int(np.sum(after < before.test)), dict(best), before.test, after, new_base)
 
 
 def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds: Folds) -> dict:
@@ -333,13 +346,14 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         else:
             words.append(w)
     y = sig.flow_lpm
-    before = cross_validate(build(base, sig, {}), y, folds)
+    cur = base
+    before = cross_validate(build(cur, sig, {}), y, folds)
     while words and len(sel.chain) < MAX_EFFECTS:
         cands = []
         for w in words:
             if progress:
                 progress(w)
-            cands.append(test_effect(w, sel.chain, before, base, sig, folds))
+            cands.append(test_effect(w, sel.chain, before, cur, sig, folds))
         passing = []
         for c in cands:
             if c.gain > margins.gain[c.word] and c.wins >= margins.min_wins:
@@ -349,11 +363,12 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
                                         f"lower in {c.wins}/{len(c.test_after)} folds (needs {margins.min_wins})")
         accepted = None
         for c in sorted(passing, key=lambda c: -c.gain):
-            params = refine(c.word, sel.chain, c.params, base, sig, folds)
+            b = c.base or cur
+            params = refine(c.word, sel.chain, c.params, b, sig, folds)
             chain = {**sel.chain, c.word: params}
-            d = build(base, sig, chain)
+            d = build(b, sig, chain)
             phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
-            why = implausible(c.word, phys) or unresolved(c.word, phys, sig, base)
+            why = implausible(c.word, phys) or unresolved(c.word, phys, sig, b)
             if why:
                 sel.rejected[c.word] = f"fits better but is not physical or not resolved: {why}"
                 continue
@@ -363,10 +378,11 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         if accepted is None:
             break
         c, sel.chain, phys = accepted
+        cur = c.base = c.base or cur
         sel.params[c.word] = phys
         sel.steps.append(c)
         sel.rejected.pop(c.word, None)
         words = [w for w in words if w != c.word and w not in sel.rejected or
                  (w in sel.rejected and not sel.rejected[w].startswith("fits better"))]
-        before = cross_validate(build(base, sig, sel.chain), y, folds)
+        before = cross_validate(build(cur, sig, sel.chain), y, folds)
     return sel
