@@ -89,10 +89,10 @@ class Base:
             ops = pi_columns(self.shape.r, x_unit)
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
             excess = fx.descending_excess(ops, x_unit, self.shape.w) * self.y_half
-            # relative duty step of the central difference: about one threshold spacing of a 50-operator
-            # PI (a fitted PI's slope within one segment is its noisiest feature) and the size of the
-            # current changes it stands for (0.393 %/K x a few K)
-            eps = 0.01
+            # relative duty step of the central difference: a few threshold spacings of a 50-operator
+            # PI (a fitted PI's slope within one segment is its noisiest feature), about the current
+            # change of a coil some ten kelvin warm (0.393 %/K)
+            eps = 0.05
             slope = (self.model.predict(x * (1 + eps))[0] - self.model.predict(x * (1 - eps))[0]) / (2 * eps)
             if len(self.cache) > 8:
                 self.cache.clear()
