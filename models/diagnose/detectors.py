@@ -117,7 +117,7 @@ EFFECTS = {
         {"extra_width": "relative (1 = twice as wide) at full flow"}, {"extra_width": (0.01, 5.0)},
         lambda sig, base: {}),
     "coil_heating": Effect(
-        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty (1 + 0.00393 T_mean)/(1 + 0.00393 T), "
+        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty / (1 + 0.00393 T), "
         "to first order",
         {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
          "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K"},

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: A duty change per sample above this (%) is a step rather than a ramp.
-STEP_PCT = 0.5
+#: A duty change faster than this (%/s) is a step rather than a ramp (a valve command ramps at a few %/s).
+STEP_PCT_PER_S = 200.0
 #: Time-since-event bins (s).
 EVENT_BINS_S = (0.0, 0.1, 0.5, 2.0, 10.0, np.inf)
 
@@ -29,13 +29,13 @@ def branch(duty_pct: np.ndarray) -> np.ndarray:
 
 
 def since_event(t_s: np.ndarray, duty_pct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Seconds since the last step (|change| > STEP_PCT per sample) and since the last reversal."""
-    d = np.diff(duty_pct, prepend=duty_pct[0])
+    """Seconds since the last step (duty faster than STEP_PCT_PER_S) and since the last reversal."""
+    d = np.diff(duty_pct, prepend=duty_pct[0]) / np.diff(t_s, prepend=t_s[0] - 1.0)
     b = branch(duty_pct)
     rev = np.zeros(len(t_s), dtype=bool)
     rev[1:] = (b[1:] != b[:-1]) & (b[:-1] != 0)
     out = []
-    for ev in (np.abs(d) > STEP_PCT, rev):
+    for ev in (np.abs(d) > STEP_PCT_PER_S, rev):
         last = np.where(ev, t_s, -np.inf)
         np.maximum.accumulate(last, out=last)
         out.append(t_s - last)
