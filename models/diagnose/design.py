@@ -86,7 +86,7 @@ class Base:
             x = sig.duty_pct
             q = self.model.predict(x)[0]
             x_unit = self.shape_scale.to_unit(x)
-            ops = pi_columns(self.shape.r, x_unit)
+            ops = pi_columns(self.shape.r, x_unit, self.shape.y0)
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
             excess = fx.descending_excess(ops, x_unit, self.shape.w) * self.y_half
             # relative duty step of the central difference: a few threshold spacings of a 50-operator
@@ -100,9 +100,9 @@ class Base:
         return hit
 
 
-def pi_columns(r: np.ndarray, x_unit: np.ndarray) -> np.ndarray:
-    """Play operator outputs, Eq. (1), started by Eq. (3) at the first input."""
-    Y, _ = play.play_response(r, x_unit, play.init(r, x_unit[0], 0.0))
+def pi_columns(r: np.ndarray, x_unit: np.ndarray, y0=np.nan) -> np.ndarray:
+    """Play operator outputs, Eq. (1), started by Eq. (3) at the first input (``y0`` NaN: at rest there)."""
+    Y, _ = play.play_response(r, x_unit, play.init(r, x_unit[0], y0))
     return Y
 
 
