@@ -28,7 +28,7 @@ model: setup
 	$(VENV)/bin/valvectl fit $(DATA)/bench_identification.csv --model pi -o config/valve_model.json
 
 bench: setup
-	for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+	for b in bench/bench_*.py; do echo "== $$b"; OPENBLAS_NUM_THREADS=1 $(PY) $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -7,11 +7,19 @@ and ``run(args) -> int``; those modules import their heavy dependencies inside
 """
 from __future__ import annotations
 
-import argparse
-import importlib
-import sys
+import os
 
-from models.recording import InputError
+# One BLAS thread, set before numpy loads: on a 2-core controller host, OpenBLAS's spinning
+# threads compete with the 1 kHz loop, and the many tiny LAPACK calls of a fit (e.g. the
+# Everett mesh's 5000 barycentric transforms: 15 ms on one thread, seconds on a busy two)
+# only lose by threading.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import sys  # noqa: E402
+
+from models.recording import InputError  # noqa: E402
 
 #: verb -> (module, one-line help)
 VERBS = {
