@@ -42,7 +42,11 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="valvectl", description=__doc__.splitlines()[0])
+    parser = _Parser(
+        prog="valvectl",
+        description="Flow control for a ventilator's proportional solenoid valve: identify its "
+        "hysteresis, run the feedforward + feedback loop, sweep tunings, diagnose model mismatch.",
+    )
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     sub.required = True
     for verb, (modname, help_) in VERBS.items():
