@@ -71,10 +71,6 @@ class Base:
     cache: dict = field(default_factory=dict, repr=False)
 
     @property
-    def x_scale(self) -> Scaling:
-        return self.model.x_scale
-
-    @property
     def y_half(self) -> float:
         return self.model.y_scale.half_range
 
