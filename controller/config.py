@@ -6,10 +6,10 @@ types are bad input (one line naming the file and the key, exit 2).
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 
 from models.recording import InputError
+from models.tomlfile import read_toml
 
 from .laws import control
 from .loop import LoopSettings
@@ -76,13 +76,7 @@ def _check(path: str, name: str, value, default):
 def load_run_config(path: str | os.PathLike = DEFAULT_RUN) -> RunConfig:
     """Read and check a run configuration."""
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path)
     sections = {name: dict(keys) for name, keys in SCHEMA.items()}
     for key, value in doc.items():
         if isinstance(value, dict):

@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass
 from typing import NamedTuple, Sequence
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from models.model import FittedModel, load_model
 from models.recording import InputError
+from models.tomlfile import read_toml
 
 from . import kernel as K
 from .effects import EFFECTS, check_effect
@@ -150,13 +150,7 @@ def load_plant(
     path = os.fspath(path)
     if path == DEFAULT_PLANT and not os.path.exists(path):
         path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), DEFAULT_PLANT)
-    try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path)
     fields: dict = {}
     for key, value in doc.items():
         if key == "model":

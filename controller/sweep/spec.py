@@ -29,12 +29,12 @@ from __future__ import annotations
 import copy
 import dataclasses
 import os
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
 
 from models.recording import InputError
+from models.tomlfile import read_toml
 
 from . import metrics, space
 
@@ -109,13 +109,7 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     from controller.laws.control import MODES
 
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path)
     folder = os.path.dirname(os.path.abspath(path))
     top = {}
     for key, value in doc.items():
