@@ -361,12 +361,13 @@ class Loop:
                 behind = clock.now() - deadline
                 if behind > 0:  # skip the deadlines already missed
                     missed = int(behind / period) + 1
+                    if n_steps is not None:  # a run of n deadlines counts none past its end
+                        missed = min(missed, n_steps - steps)
+                        n_steps -= missed
                     deadline += missed * period
                     overruns += missed
-                    if n_steps is not None:
-                        n_steps -= missed
-                        if steps >= n_steps:
-                            break
+                    if n_steps is not None and steps >= n_steps:
+                        break
         finally:
             rt.close()
             if gc_was_enabled:
