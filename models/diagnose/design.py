@@ -62,12 +62,16 @@ class Base:
         is a PI).
     shape_scale : Scaling
         Duty scaling of ``shape``'s input.
+    parent : Base, optional
+        For a PI refitted jointly with an effect (:func:`unbend`): the baseline whose loop
+        offset, descending excess and slope the effect columns were fitted with.
     """
 
     refit: bool
     model: FittedModel
     shape: PIModel
     shape_scale: Scaling
+    parent: "Base | None" = None
     cache: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -78,6 +82,8 @@ class Base:
         """Prediction, loop offset, descending excess and ``x dq/dx`` (all L/min) on ``sig``'s duty (cached)."""
         k = id(sig)
         hit = self.cache.get(k)
+        if hit is None and self.parent is not None:
+            hit = self.cache[k] = (self.model.predict(sig.duty_pct)[0],) + self.parent.response(sig)[1:]
         if hit is None:
             x = sig.duty_pct
             q = self.model.predict(x)[0]
@@ -93,6 +99,17 @@ class Base:
             if len(self.cache) > 8:
                 self.cache.clear()
             hit = self.cache[k] = (q, loop, excess, slope)
+        return hit
+
+
+    def regressors(self, sig: Signals) -> np.ndarray:
+        """The baseline PI's play operator outputs on ``sig``'s duty and a column of ones (cached)."""
+        k = ("P", id(sig))
+        hit = self.cache.get(k)
+        if hit is None:
+            x_unit = self.shape_scale.to_unit(sig.duty_pct)
+            hit = self.cache[k] = np.column_stack([pi_columns(self.shape.r, x_unit, self.shape.y0),
+                                                   np.ones(len(x_unit))])
         return hit
 
 
@@ -163,9 +180,7 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         cols.append(heating_column(sig, chain["coil_heating"], slope))
         names.append("coil_heating")
     X = np.column_stack(cols) if cols else np.zeros((n, 0))
-    gain = flow_gain(sig, chain)
-    F, X, ref = F * gain, X * gain[:, None], ref * gain
-    F, X, ref = (dynamics(v, rate, chain) for v in (F, X, ref))
+    F, X, ref = (at_sensor(v, sig, chain) for v in (F, X, ref))
     extra = []
     if "creep" in chain:
         extra.append(fx.creep(ref, branch(sig.duty_pct), rate, chain["creep"]["tau_s"]))
@@ -199,6 +214,13 @@ def heating_column(sig: Signals, params: dict, slope: np.ndarray) -> np.ndarray:
         steady0 = (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
         rise = fx.coil_temperature_rise(x, sig.rate_hz, params["tau_s"], 1.0, params.get("start", 1.0) * steady0)
     return -fx.ALPHA_CU_PER_K * rise * slope
+
+
+def at_sensor(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
+    """A flow at the valve (or every column of one) as the sensor sees it: dead zone and
+    supply-pressure gain, then transport delay and lag."""
+    gain = flow_gain(sig, chain)
+    return dynamics(v * (gain if v.ndim == 1 else gain[:, None]), sig.rate_hz, chain)
 
 
 def dynamics(v: np.ndarray, rate_hz: float, chain: dict) -> np.ndarray:
@@ -335,3 +357,45 @@ def refit_rows(base: Base, sig: Signals, rows: np.ndarray) -> Base:
     model = FittedModel("pi", core, m.x_scale, m.y_scale, meta={**m.meta, "refitted": "without shut/saturated rows"})
     return Base(True, model, core, m.x_scale)
 
+
+
+#: Effects on the input side of the hysteresis: a PI fitted with them present has bent its
+#: weights to absorb them, so their test refits the weights jointly with the effect.
+INPUT_SIDE = ("coil_heating",)
+
+
+def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
+    """The baseline PI with its weights refitted jointly with the input-side effects of ``chain``.
+
+    Coil heating lowers the current the magnetics see along the thermal history;
+    a PI fitted through it bends its weights to absorb what it can on average,
+    and a heating column on top of that bent PI only sees what is left. With
+    the heating column linear, the joint fit of the PI's play operator outputs
+    (Eq. 1, 4), its offset and the column is one least-squares problem on the
+    training ``rows``; the PI's own gram matrix is shared by every grid point.
+    Returns ``base`` itself when there is nothing to refit (a model file is held fixed).
+    """
+    words = [w for w in INPUT_SIDE if w in chain]
+    if not base.refit or not words:
+        return base
+    rest = {w: p for w, p in chain.items() if w not in INPUT_SIDE}
+    d = build(base, sig, chain)
+    H = d.X[:, [d.names.index(w) for w in words]]
+    fr = rows & d.fit_ok
+    y = sig.flow_lpm
+    key = ("gram", id(sig), repr(sorted(rest.items())), int(fr.sum()))
+    hit = base.cache.get(key)
+    if hit is None:
+        P = at_sensor(base.regressors(sig), sig, rest)[fr]
+        hit = base.cache[key] = (P, _gram(P, P), P.T @ y[fr])
+    P, G, gy = hit
+    Hf = H[fr]
+    PH = _gram(P, Hf)
+    A = np.block([[G, PH], [PH.T, _gram(Hf, Hf)]])
+    a = _solve(A, np.concatenate([gy, Hf.T @ y[fr]]))
+    m = base.model
+    ys = m.y_scale
+    m_ops = P.shape[1] - 1
+    core = PIModel(base.shape.r, a[:m_ops] / ys.half_range, (a[m_ops] - ys.center) / ys.half_range, base.shape.y0)
+    model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"jointly with {', '.join(words)}"})
+    return Base(True, model, core, m.x_scale, parent=base.parent or base)

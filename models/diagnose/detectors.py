@@ -27,7 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from . import effects as fx
 from .calibrate import Margins
-from .design import Base, CVResult, Design, build, cross_validate, fit_final, flow_gain, refit_rows
+from .design import INPUT_SIDE, Base, CVResult, Design, build, cross_validate, fit_final, flow_gain, refit_rows, unbend
 from .folds import Folds
 from .signals import Signals
 
@@ -194,13 +194,16 @@ STATIC = ("dead_zone", "saturation")
 def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds) -> Candidate:
     """Cross-validated test of ``word`` added to ``chain``."""
     points = grid_points(EFFECTS[word], sig, base)
-    results = [cross_validate(build(base, sig, {**chain, word: p}), sig.flow_lpm, folds) for p in points]
+    results = [cross_validate(design(word, base, sig, {**chain, word: p}, folds)[0], sig.flow_lpm, folds)
+               for p in points]
     train = np.array([r.train for r in results])          # (G, K)
     test = np.array([r.test for r in results])
     pick = np.argmin(train, axis=0)                        # per fold, chosen on its training rows
     after = test[pick, np.arange(folds.k)]
     best = points[int(np.argmin(train.sum(axis=1)))]
     new_base = None
+    if word in INPUT_SIDE and base.refit:
+        new_base = design(word, base, sig, {**chain, word: best}, folds)[1]
     if word in STATIC and base.refit:
         ch = {**chain, word: best}
         d = build(base, sig, ch)
@@ -210,6 +213,13 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
             after, new_base = cv.test, refit
     gain = 1.0 - after.sum() / before.test.sum()
     return Candidate(word, float(gain), int(np.sum(after < before.test)), dict(best), before.test, after, new_base)
+
+
+def design(word: str, base: Base, sig: Signals, chain: dict, folds: Folds) -> tuple[Design, Base]:
+    """The design of ``chain`` when testing ``word``, and its base (the PI refitted jointly with an
+    input-side effect, :func:`models.diagnose.design.unbend`)."""
+    b = unbend(base, sig, chain, folds.train) if word in INPUT_SIDE else base
+    return build(b, sig, chain), b
 
 
 def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds: Folds) -> dict:
@@ -226,7 +236,7 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
         lo, hi = np.log(values[max(i - 1, 0)]), np.log(values[min(i + 1, len(values) - 1)])
 
         def cost(u):
-            d = build(base, sig, {**chain, word: {**params, key: float(np.exp(u))}})
+            d = design(word, base, sig, {**chain, word: {**params, key: float(np.exp(u))}}, folds)[0]
             return train_sse(d, y, rows)
 
         res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02, "maxiter": 12})
@@ -370,16 +380,18 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
                                         f"lower in {c.wins}/{len(c.test_after)} folds (needs {margins.min_wins})")
         accepted = None
         for c in sorted(passing, key=lambda c: -c.gain):
-            b = c.base or cur
+            b = cur if c.word in INPUT_SIDE else c.base or cur
             params = refine(c.word, sel.chain, c.params, b, sig, folds)
             chain = {**sel.chain, c.word: params}
-            d = build(b, sig, chain)
+            d, b = design(c.word, b, sig, chain, folds)
             phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
             why = implausible(c.word, phys) or unresolved(c.word, phys, sig, b)
             if why:
                 sel.rejected[c.word] = f"fits better but is not physical or not resolved: {why}"
                 continue
             c.params = params
+            if c.word in INPUT_SIDE:
+                c.base = b
             accepted = (c, chain, phys)
             break
         if accepted is None:
