@@ -365,7 +365,8 @@ INPUT_SIDE = ("coil_heating",)
 
 
 def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
-    """The baseline PI with its weights refitted jointly with the input-side effects of ``chain``.
+    """The baseline PI with its weights refitted under ``chain``: through its dead zone, pressure
+    gain, delay and lag, jointly with its input-side effects.
 
     Coil heating lowers the current the magnetics see along the thermal history;
     a PI fitted through it bends its weights to absorb what it can on average,
@@ -373,14 +374,14 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     the heating column linear, the joint fit of the PI's play operator outputs
     (Eq. 1, 4), its offset and the column is one least-squares problem on the
     training ``rows``; the PI's own gram matrix is shared by every grid point.
-    Returns ``base`` itself when there is nothing to refit (a model file is held fixed).
+    Returns ``base`` itself for a model file (held fixed).
     """
     words = [w for w in INPUT_SIDE if w in chain]
-    if not base.refit or not words:
+    if not base.refit:
         return base
     rest = {w: p for w, p in chain.items() if w not in INPUT_SIDE}
     d = build(base, sig, chain)
-    H = d.X[:, [d.names.index(w) for w in words]]
+    H = d.X[:, [d.names.index(w) for w in words]] if words else np.zeros((len(sig), 0))
     fr = rows & d.fit_ok
     y = sig.flow_lpm
     key = ("gram", id(sig), repr(sorted(rest.items())), int(fr.sum()))
@@ -397,5 +398,5 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     ys = m.y_scale
     m_ops = P.shape[1] - 1
     core = PIModel(base.shape.r, a[:m_ops] / ys.half_range, (a[m_ops] - ys.center) / ys.half_range, base.shape.y0)
-    model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"jointly with {', '.join(words)}"})
+    model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
     return Base(True, model, core, m.x_scale, parent=base.parent or base)

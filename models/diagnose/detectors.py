@@ -397,7 +397,8 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         if accepted is None:
             break
         c, sel.chain, phys = accepted
-        cur = c.base = c.base or cur
+        # the PI's weights refitted under the named effects, so the next tests start from its best
+        cur = c.base = unbend(c.base or cur, sig, sel.chain, folds.train)
         sel.params[c.word] = phys
         sel.steps.append(c)
         sel.rejected.pop(c.word, None)
