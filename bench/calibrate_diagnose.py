@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from diagnose_suite import EXCITATIONS, MODEL_JSON, Case, record  # noqa: E402
 
 from models.diagnose.calibrate import PATH, calibrate  # noqa: E402
-from models.diagnose.design import build, cross_validate, fit_baseline, fixed_base  # noqa: E402
-from models.diagnose.detectors import EFFECTS, WORDS, test_effect  # noqa: E402
+from models.diagnose.design import fit_baseline, fixed_base  # noqa: E402
+from models.diagnose.detectors import EFFECTS, WORDS, reference, test_effect  # noqa: E402
 from models.diagnose.folds import make_folds  # noqa: E402
 from models.diagnose.signals import work_signals  # noqa: E402
 from models.model import load_model  # noqa: E402
@@ -41,7 +41,7 @@ def free_gains(seeds=SEEDS, noises=NOISES, excitations=EXCITATIONS) -> tuple[dic
         sig = work_signals(record(Case((), exc, seed, noise)))
         folds = make_folds(sig.t_s)
         for base in (fit_baseline(sig, folds), fixed_base(model, sig)):
-            before = cross_validate(build(base, sig, {}), sig.flow_lpm, folds)
+            base, before = reference(base, sig, folds)
             for w in WORDS:
                 if EFFECTS[w].applicable(sig, base) or (not base.refit and w != "sensor_offset"):
                     continue

@@ -339,6 +339,14 @@ class Selection:
     not_identifiable: dict = field(default_factory=dict)
 
 
+def reference(base: Base, sig: Signals, folds: Folds) -> tuple[Base, CVResult]:
+    """What the first tests are held against: the baseline, its PI refitted the way every test
+    refits it (:func:`models.diagnose.design.unbend`, unconstrained on the training rows), and its
+    cross-validated errors."""
+    cur = unbend(base, sig, {}, folds.train)
+    return cur, cross_validate(build(cur, sig, {}), sig.flow_lpm, folds)
+
+
 def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=None) -> Selection:
     """Greedy forward selection of effects by blocked cross-validation.
 
@@ -360,8 +368,7 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         else:
             words.append(w)
     y = sig.flow_lpm
-    cur = base
-    before = cross_validate(build(cur, sig, {}), y, folds)
+    cur, before = reference(base, sig, folds)
     while words and len(sel.chain) < MAX_EFFECTS:
         cands = []
         for w in words:
