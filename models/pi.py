@@ -153,16 +153,47 @@ def fit_pi(
     Y = regressors(r, x)
     if rows is not None:
         Y, y = Y[rows], y[rows]
-    m = len(r)
+    w, offset, _ = fit_weights(Y, y, constrained=constrained, min_slope=min_slope)
+    return PIModel(r=r, w=w, offset=offset)
+
+
+def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, constrained: bool = True,
+                min_slope: float = MIN_SLOPE) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least-squares weights and offset of Eq. (4) on given operator outputs, with optional extra columns.
+
+    Parameters
+    ----------
+    Y : ndarray, shape (N, m)
+        Play operator outputs (or any linear transform of them applied row-wise in time,
+        such as a delay or a lag of every column).
+    y : ndarray, shape (N,)
+        Output, normalized.
+    extra : ndarray, shape (N, p), optional
+        Further columns fitted jointly, without bounds.
+    constrained : bool
+        Keep every loading-curve slope (partial sum of the weights) >= ``min_slope``.
+
+    Returns
+    -------
+    w : ndarray, shape (m,)
+        Weights.
+    offset : float
+        Offset ``c``.
+    coef : ndarray, shape (p,)
+        Coefficients of ``extra``.
+    """
+    m = Y.shape[1]
+    extra = np.zeros((len(y), 0)) if extra is None else extra
     # Unknowns: partial sums s_i = sum_{j<=i} w_j (the loading-curve slopes), so w = D s with
     # D the first difference; Y @ w = (Y @ D) @ s, whose columns Y_i - Y_{i+1} (last: Y_m) are
     # far better conditioned than Y's (about 1e3 against 4e3 on the bench recording).
     YD = Y.copy()
     YD[:, :-1] -= Y[:, 1:]
-    A = np.column_stack([YD, np.ones(len(y))])
-    lb = np.concatenate([np.full(m, min_slope), [-np.inf]]) if constrained else None
+    A = np.column_stack([YD, np.ones(len(y)), extra])
+    free = np.full(1 + extra.shape[1], -np.inf)
+    lb = np.concatenate([np.full(m, min_slope), free]) if constrained else None
     theta = _least_squares(A, y, lb)
-    return PIModel(r=r, w=np.diff(theta[:m], prepend=0.0), offset=theta[m])
+    return np.diff(theta[:m], prepend=0.0), float(theta[m]), theta[m + 1:]
 
 
 #: Above this condition number of the compressed triangle, compress by QR instead of Cholesky.

@@ -32,7 +32,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from .. import play
 from ..model import FittedModel
-from ..pi import PIModel, fit_pi
+from ..pi import PIModel, fit_pi, fit_weights
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
@@ -103,13 +103,11 @@ class Base:
 
 
     def regressors(self, sig: Signals) -> np.ndarray:
-        """The baseline PI's play operator outputs on ``sig``'s duty and a column of ones (cached)."""
+        """The baseline PI's play operator outputs on ``sig``'s duty (cached)."""
         k = ("P", id(sig))
         hit = self.cache.get(k)
         if hit is None:
-            x_unit = self.shape_scale.to_unit(sig.duty_pct)
-            hit = self.cache[k] = np.column_stack([pi_columns(self.shape.r, x_unit, self.shape.y0),
-                                                   np.ones(len(x_unit))])
+            hit = self.cache[k] = pi_columns(self.shape.r, self.shape_scale.to_unit(sig.duty_pct), self.shape.y0)
         return hit
 
 
@@ -373,7 +371,9 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     and a heating column on top of that bent PI only sees what is left. With
     the heating column linear, the joint fit of the PI's play operator outputs
     (Eq. 1, 4), its offset and the column is one least-squares problem on the
-    training ``rows``; the PI's own gram matrix is shared by every grid point.
+    training ``rows``, with the paper's constraint (every loading-curve slope
+    positive): refitted freely, the weights of the wide operators, which rare
+    excursions alone move, extrapolate wildly on held-out levels.
     Returns ``base`` itself for a model file (held fixed).
     """
     words = [w for w in INPUT_SIDE if w in chain]
@@ -382,21 +382,11 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     rest = {w: p for w, p in chain.items() if w not in INPUT_SIDE}
     d = build(base, sig, chain)
     H = d.X[:, [d.names.index(w) for w in words]] if words else np.zeros((len(sig), 0))
-    fr = rows & d.fit_ok
-    y = sig.flow_lpm
-    key = ("gram", id(sig), repr(sorted(rest.items())), int(fr.sum()))
-    hit = base.cache.get(key)
-    if hit is None:
-        P = at_sensor(base.regressors(sig), sig, rest)[fr]
-        hit = base.cache[key] = (P, _gram(P, P), P.T @ y[fr])
-    P, G, gy = hit
-    Hf = H[fr]
-    PH = _gram(P, Hf)
-    A = np.block([[G, PH], [PH.T, _gram(Hf, Hf)]])
-    a = _solve(A, np.concatenate([gy, Hf.T @ y[fr]]))
+    fr = rows & d.fit_ok & (flow_gain(sig, chain) > 0)  # the shut rows of a dead zone say nothing of the PI
     m = base.model
     ys = m.y_scale
-    m_ops = P.shape[1] - 1
-    core = PIModel(base.shape.r, a[:m_ops] / ys.half_range, (a[m_ops] - ys.center) / ys.half_range, base.shape.y0)
+    Y = at_sensor(base.regressors(sig), sig, rest)
+    w, offset, _ = fit_weights(Y[fr], ys.to_unit(sig.flow_lpm[fr]), H[fr] / ys.half_range)
+    core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
     return Base(True, model, core, m.x_scale, parent=base.parent or base)
