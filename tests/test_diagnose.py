@@ -82,3 +82,16 @@ def test_concealed_effect_is_named_and_improves_holdout(words, exc):
     for f in d.findings:
         assert f.holdout_rmse_after < f.holdout_rmse_before
     assert np.array_equal(d.augmented_lpm, d.steps_lpm[-1])
+
+
+def test_coil_heating_parameters_are_recovered_in_physical_units():
+    case = S.make_case(("coil_heating",), "random_holds", seed=4, noise=0.5)
+    d = diagnose_response(S.record(case))
+    assert d.baseline.r >= 0.998
+    heating = {f.effect: f for f in d.findings}["coil_heating"]
+    injected_k = dict(case.effects)["coil_heating"]
+    # the thermal time constant and the steady rise at 55 % duty, not just a better fit (the rise
+    # of an effect the size of the noise is known to within a factor of a few)
+    assert 1 / 3 < heating.params["rise55_k"] / injected_k < 3.0
+    assert 0.5 < heating.params["tau_s"] / S.COIL_TAU_S < 2.0
+    assert heating.holdout_rmse_after < heating.holdout_rmse_before
