@@ -6,10 +6,12 @@ model linear in its remaining unknowns, so the augmented model is::
 
     q(t) = min(F(t) + X(t) theta, q_sat)
 
-The hysteresis core is the baseline's, with its weights as fitted: a PI of
-50 operators refitted on 5/6 of the training blocks is far less stable on
-the sixth (rare excursions set the states of the wide operators) than the
-effects it is meant to reveal. With a baseline fitted on the recording its
+The hysteresis core's weights are fitted once on all training rows, under
+the effects named so far and jointly with an input-side effect under test
+(:func:`unbend`), never per fold: a PI of 50 operators refitted on 5/6 of the
+training blocks is far less stable on the sixth (rare excursions set the
+states of the wide operators) than the effects it is meant to reveal; the
+leak this leaves is measured by the calibration on effect-free recordings. With a baseline fitted on the recording its
 prediction enters with a free *gain*, *offset*, *loop width* and *duty
 scale* (``x dq/dx``: the response to a constant change of the coil current),
 the ways a baseline fitted with an effect present has bent to absorb it on
