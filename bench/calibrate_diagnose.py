@@ -14,11 +14,13 @@ import itertools
 import json
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import numpy as np  # noqa: E402
 from diagnose_suite import EXCITATIONS, MODEL_JSON, Case, record  # noqa: E402
 
 from models.diagnose.calibrate import PATH, calibrate  # noqa: E402
@@ -27,27 +29,43 @@ from models.diagnose.detectors import EFFECTS, WORDS, reference, test_effect  # 
 from models.diagnose.folds import make_folds  # noqa: E402
 from models.diagnose.signals import work_signals  # noqa: E402
 from models.model import load_model  # noqa: E402
+from models.recording import Recording  # noqa: E402
 
 SEEDS = (11, 12, 13)
 NOISES = (0.25, 0.5, 1.0)
+#: Noise of the supply gauge (bar) on the effect-free recordings: a steady supply read by a real
+#: gauge, so that the supply-pressure detector has something to be calibrated on.
+GAUGE_NOISE_BAR = 0.01
 
 
-def free_gains(seeds=SEEDS, noises=NOISES, excitations=EXCITATIONS) -> tuple[dict, dict]:
+def free_gains_one(job) -> dict:
+    """Relative held-out gain and folds won of every detector on one effect-free recording."""
+    exc, seed, noise = job
+    rec = record(Case((), exc, seed, noise))
+    gauge = rec.columns["supply_bar"] + np.random.default_rng(seed).normal(0.0, GAUGE_NOISE_BAR, len(rec.t_s))
+    rec = Recording(rec.path, {**rec.columns, "supply_bar": gauge})
+    sig = work_signals(rec)
+    folds = make_folds(sig.t_s)
+    out = {}
+    for base in (fit_baseline(sig, folds), fixed_base(load_model(MODEL_JSON), sig)):
+        base, before = reference(base, sig, folds)
+        for w in WORDS:
+            if EFFECTS[w].applicable(sig, base) or (not base.refit and w != "sensor_offset"):
+                continue
+            c = test_effect(w, {}, before, base, sig, folds)
+            out.setdefault(w, []).append((c.gain, c.wins))
+    return out
+
+
+def free_gains(seeds=SEEDS, noises=NOISES, excitations=EXCITATIONS, workers: int = 2) -> tuple[dict, dict]:
     """Relative held-out gain and folds won of every detector on every effect-free recording."""
-    model = load_model(MODEL_JSON)
     gains = {w: [] for w in WORDS}
     wins = {w: [] for w in WORDS}
-    for exc, seed, noise in itertools.product(excitations, seeds, noises):
-        sig = work_signals(record(Case((), exc, seed, noise)))
-        folds = make_folds(sig.t_s)
-        for base in (fit_baseline(sig, folds), fixed_base(model, sig)):
-            base, before = reference(base, sig, folds)
-            for w in WORDS:
-                if EFFECTS[w].applicable(sig, base) or (not base.refit and w != "sensor_offset"):
-                    continue
-                c = test_effect(w, {}, before, base, sig, folds)
-                gains[w].append(c.gain)
-                wins[w].append(c.wins)
+    with ProcessPoolExecutor(workers) as ex:
+        for out in ex.map(free_gains_one, itertools.product(excitations, seeds, noises)):
+            for w, results in out.items():
+                gains[w] += [g for g, _ in results]
+                wins[w] += [k for _, k in results]
     return gains, wins
 
 
@@ -56,7 +74,8 @@ def main() -> int:
     gains, wins = free_gains()
     margins = calibrate(gains)
     doc = {"generated_by": "bench/calibrate_diagnose.py", "recordings": "plant_sim effect-free, seeds "
-           f"{list(SEEDS)}, noise {list(NOISES)} L/min, excitations {list(EXCITATIONS)}",
+           f"{list(SEEDS)}, noise {list(NOISES)} L/min, excitations {list(EXCITATIONS)}, supply gauge noise "
+           f"{GAUGE_NOISE_BAR} bar",
            **margins.to_dict(),
            "free_max_gain": {w: max(g) if g else None for w, g in gains.items()},
            "free_max_wins": {w: max(v) if v else None for w, v in wins.items()}}

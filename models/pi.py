@@ -158,7 +158,7 @@ def fit_pi(
 
 
 def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, constrained: bool = True,
-                min_slope: float = MIN_SLOPE) -> tuple[np.ndarray, float, np.ndarray]:
+                min_slope: float = MIN_SLOPE, nonnegative: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
     """Least-squares weights and offset of Eq. (4) on given operator outputs, with optional extra columns.
 
     Parameters
@@ -172,6 +172,9 @@ def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, c
         Further columns fitted jointly, without bounds.
     constrained : bool
         Keep every loading-curve slope (partial sum of the weights) >= ``min_slope``.
+    nonnegative : bool
+        Keep every weight >= 0 instead (the classical PI: a non-negative density of play
+        operators, each an elementary hysteresis of the same sign).
 
     Returns
     -------
@@ -184,6 +187,10 @@ def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, c
     """
     m = Y.shape[1]
     extra = np.zeros((len(y), 0)) if extra is None else extra
+    if nonnegative:
+        A = np.column_stack([Y, np.ones(len(y)), extra])
+        theta = _least_squares(A, y, np.concatenate([np.zeros(m), np.full(1 + extra.shape[1], -np.inf)]))
+        return theta[:m], float(theta[m]), theta[m + 1:]
     # Unknowns: partial sums s_i = sum_{j<=i} w_j (the loading-curve slopes), so w = D s with
     # D the first difference; Y @ w = (Y @ D) @ s, whose columns Y_i - Y_{i+1} (last: Y_m) are
     # far better conditioned than Y's (about 1e3 against 4e3 on the bench recording).

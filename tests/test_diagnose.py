@@ -14,6 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 S = pytest.importorskip("diagnose_suite")
+F = pytest.importorskip("diagnose_foreign")
 
 from controller.cli import main  # noqa: E402
 from models.diagnose import diagnose_response  # noqa: E402
@@ -65,8 +66,10 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys):
 CASES = [
     (("supply_pressure",), "ramps"),
     (("valve_dynamics",), "sines"),
-    (("asymmetric_hysteresis",), "ramps"),
+    (("asymmetric_hysteresis",), "random_holds"),
     (("sensor_offset",), "random_holds"),
+    (("dead_zone",), "ramps"),
+    (("transport_delay", "creep"), "random_holds"),
 ]
 
 
@@ -81,7 +84,8 @@ def test_concealed_effect_is_named_and_improves_holdout(words, exc):
     assert words[0] in named
     for f in d.findings:
         assert f.holdout_rmse_after < f.holdout_rmse_before
-    assert np.array_equal(d.augmented_lpm, d.steps_lpm[-1])
+    chain = [p for f, p in zip(d.findings, d.steps_lpm) if f.alternative_to is None]
+    assert np.array_equal(d.augmented_lpm, chain[-1])
 
 
 def test_coil_heating_parameters_are_recovered_in_physical_units():
@@ -95,3 +99,51 @@ def test_coil_heating_parameters_are_recovered_in_physical_units():
     assert 1 / 3 < heating.params["rise55_k"] / injected_k < 3.0
     assert 0.5 < heating.params["tau_s"] / S.COIL_TAU_S < 2.0
     assert heating.holdout_rmse_after < heating.holdout_rmse_before
+
+
+def test_steps_tell_a_delay_of_a_few_samples_from_a_lag():
+    # 25 ms at 100 Hz: the flow stays put for two and a half samples after each step, which no lag does
+    d = diagnose_response(S.record(S.Case((("transport_delay", 0.025),), "random_holds", 4, 0.5)))
+    named = {f.effect: f for f in d.findings}
+    assert "transport_delay" in named and named["transport_delay"].alternative_to is None
+    assert named["transport_delay"].params["delay_s"] == pytest.approx(0.025, rel=0.1)
+    assert "valve_dynamics" not in named
+
+
+def test_a_smooth_excitation_reports_lag_and_delay_as_alternatives():
+    # on ramps a delay and a lag both shift the response by -tau dq/dt: the diagnosis says it cannot tell
+    d = diagnose_response(S.record(S.make_case(("transport_delay",), "ramps", seed=4, noise=0.5)))
+    named = {f.effect: f for f in d.findings}
+    assert set(named) >= {"transport_delay", "valve_dynamics"}
+    alt = [f for f in d.findings if f.alternative_to is not None]
+    assert len(alt) == 1 and alt[0].alternative_to in named and "cannot tell a lag" in alt[0].evidence
+    assert alt[0].holdout_rmse_after < alt[0].holdout_rmse_before
+
+
+def test_supply_pressure_exponent_is_near_choked_flow():
+    case = S.make_case(("supply_pressure",), "paper", seed=4, noise=0.5)
+    d = diagnose_response(S.record(case))
+    p = {f.effect: f for f in d.findings}["supply_pressure"].params
+    # plant_sim's valve is choked (flow proportional to the absolute supply): exponent 1
+    assert 0.6 < p["exponent"] < 1.5
+
+
+# -- recordings made without plant_sim (bench/diagnose_foreign.py): the diagnosis is built for the physics --
+
+@pytest.mark.parametrize("exc", ["breaths", "chirp"])
+def test_foreign_effect_free_recording_has_no_finding(exc):
+    d = diagnose_response(F.record(F.Case((), exc, 3, 0.5)))
+    assert d.baseline.r >= 0.998
+    assert d.findings == []
+
+
+@pytest.mark.parametrize("word,exc", [("creep", "chirp"), ("valve_dynamics", "staircase"), ("coil_heating", "triangles"),
+                                      ("dead_zone", "triangles")])
+def test_foreign_concealed_effect_is_named(word, exc):
+    # creep relaxing over 12 s, a first-order-hold lag, a 150 s coil, no flow below a cracking duty
+    case = F.make_case((word,), exc, 3, 0.5)
+    d = diagnose_response(F.record(case))
+    assert d.baseline.r >= 0.998
+    assert word in [f.effect for f in d.findings]
+    for f in d.findings:
+        assert f.holdout_rmse_after < f.holdout_rmse_before

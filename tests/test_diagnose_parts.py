@@ -78,33 +78,68 @@ def test_creep_drifts_after_each_reversal_by_the_last_step():
     direction = np.r_[np.ones(100), -np.ones(700)]
     direction[0] = 0
     s = fx.reversal_step(q, direction)
-    assert np.all(s[:100] == 0)  # before the second reversal there is no reversal-to-reversal step
+    assert np.all(s[:100] == 0)  # no reversal yet
+    # the start (at rest at its first input) is the first turning point: up by 40 L/min to the reversal
+    assert np.all(s[100:] == pytest.approx(50.0 - 10.0))
+    k = np.arange(700)
     z = fx.creep(q, direction, 10.0, 5.0)
-    assert np.all(z == 0)  # one reversal only
+    # tau dz/dt = s - z from the reversal on: z = s (1 - exp(-t / tau)), a sample late (ZOH)
+    np.testing.assert_allclose(z[100:], 40.0 * (1 - np.exp(-k / 50.0)), atol=1e-9)
     direction2 = np.r_[direction[:200], np.ones(600)]  # reverses again at the bottom
     s2 = fx.reversal_step(q, direction2)
     assert s2[-1] == pytest.approx(20.0 - 50.0)  # went down by 30 L/min between the reversals
-    z2 = fx.creep(q, direction2, 10.0, 5.0)
-    k = np.arange(600)
-    # tau dz/dt = s - z from the reversal on: z = s (1 - exp(-t / tau)), a sample late (ZOH)
-    np.testing.assert_allclose(z2[200:], -30.0 * (1 - np.exp(-k / 50.0)), atol=1e-9)
 
 
-def test_descending_excess_only_on_descending_branch():
+def test_descending_lift_of_one_operator_follows_its_bounds():
     from models.diagnose.design import pi_columns
-    from models.pi import thresholds
 
-    r = thresholds(10)
-    w = np.full(len(r), 0.1)
-    x = np.r_[np.linspace(0, 1, 100), np.linspace(1, -1, 200), np.linspace(-1, 1, 200)]
+    r = np.array([0.2])
+    # up to the top, down to the middle, hold, up a little (inside the play), then up past the bound
+    x = np.r_[np.linspace(-1, 1, 101), np.linspace(1, 0, 51)[1:], np.zeros(20), np.linspace(0, 0.3, 16)[1:],
+              np.linspace(0.3, 0.8, 26)[1:]]
     ops = pi_columns(r, x)
-    e = fx.descending_excess(ops, x, w)
-    loop = fx.loop_offset(ops, x, w)
-    # at the bottom of a full descent every operator hangs r_i above the input
-    assert e[299] == pytest.approx(w @ r) and loop[299] == pytest.approx(w @ r)
-    # at the top of a full ascent none is above it: no excess, loop offset -sum w r
-    assert e[-1] == 0 and loop[-1] == pytest.approx(-(w @ r))
-    assert np.all(np.diff(e[300:]) <= 1e-12)  # ascending uses the excess up
+    lift = fx.descending_lift(ops, x, r)[:, 0]
+    s = (x + 1) / 2
+    assert np.all(lift[:101] == 0)  # ascending: the descending bound never drives it
+    k = 101 + np.flatnonzero(ops[101:151, 0] == x[101:151] + 0.2)
+    np.testing.assert_allclose(lift[k], s[k])  # driven down: dy/dc = s(x), the level now
+    held = slice(151, 185)  # at x = 0 and up to 0.3 < 0 + 2 r: the operator holds, so does its lift
+    np.testing.assert_allclose(lift[held], s[150])
+    assert lift[-1] == 0  # the ascending bound took over: the lift is gone
+
+
+def test_descending_lift_of_a_zero_threshold_only_on_descents():
+    from models.diagnose.design import pi_columns
+
+    r = np.array([0.0])
+    x = np.r_[np.linspace(-1, 0.5, 30), np.linspace(0.5, -0.5, 30)[1:], np.full(5, -0.5)]
+    lift = fx.descending_lift(pi_columns(r, x), x, r)[:, 0]
+    assert np.all(lift[:30] == 0)
+    np.testing.assert_allclose(lift[30:59], (x[30:59] + 1) / 2)
+    np.testing.assert_allclose(lift[59:], (x[58] + 1) / 2)  # a hold keeps the lift of the last descent
+
+
+@pytest.mark.parametrize("h", [0.05, 0.2, 0.4])
+def test_major_loop_half_width_of_one_operator_is_its_threshold(h):
+    from models.diagnose.design import major_loop_half_width
+
+    assert major_loop_half_width(np.array([h]), np.array([1.0])) == pytest.approx(h, rel=1e-3)
+
+
+def test_nonnegative_weights_recover_a_density():
+    from models.pi import fit_weights, regressors, thresholds
+
+    rng = np.random.default_rng(5)
+    r = thresholds(10)
+    x = np.cumsum(rng.normal(0, 0.05, 4000))
+    x = 2 * (x - x.min()) / np.ptp(x) - 1
+    Y = regressors(r, x)
+    w_true = np.r_[0.5, np.zeros(4), 0.3, 0.2, np.zeros(4)]
+    y = Y @ w_true + 0.1 + rng.normal(0, 1e-3, len(x))
+    w, c, _ = fit_weights(Y, y, nonnegative=True)
+    assert np.all(w >= 0)
+    np.testing.assert_allclose(w, w_true, atol=0.02)
+    assert c == pytest.approx(0.1, abs=0.01)
 
 
 def test_cross_validation_recovers_a_linear_law():

@@ -27,8 +27,8 @@ from ..metrics import Metrics, metrics
 from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
-from .design import build, fit_baseline, fit_final, fixed_base
-from .detectors import EFFECTS, Selection, select_effects
+from .design import build, fit_baseline, fit_final, fixed_base, unbend
+from .detectors import AMBIGUOUS, EFFECTS, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
 from .signals import WORK_RATE_HZ, raw_signals, work_signals
@@ -52,6 +52,9 @@ class Finding:
         RMSE (L/min) on the final holdout without and with this effect (on top of the stronger ones).
     params : dict
         Parameters in the units of DESIGN.md's effect table.
+    alternative_to : str, optional
+        The named word this one fits as well as (a lag for a delay or the reverse): it is not in
+        the augmented model's chain.
     """
 
     effect: str
@@ -61,6 +64,7 @@ class Finding:
     holdout_rmse_before: float
     holdout_rmse_after: float
     params: dict
+    alternative_to: str | None = None
 
     def to_dict(self) -> dict:
         return {"effect": self.effect, "where": self.where, "evidence": self.evidence, "score": self.score,
@@ -77,8 +81,10 @@ class Diagnosis:
         The recording.
     baseline_lpm, augmented_lpm : ndarray
         Baseline and augmented predictions (equal when nothing is found).
-    steps_lpm : list of ndarray
-        Prediction after each finding, in order (the last is ``augmented_lpm``).
+    steps_lpm, before_lpm : list of ndarray
+        Prediction after and before each finding, in order; an alternative finding (a lag that a
+        delay fits as well, or the reverse) has its own prediction and is not in the chain, so
+        ``augmented_lpm`` is the last prediction of the chain.
     holdout : ndarray of bool
         Rows never used to fit anything.
     baseline : Metrics
@@ -97,6 +103,7 @@ class Diagnosis:
     baseline_lpm: np.ndarray
     augmented_lpm: np.ndarray
     steps_lpm: list
+    before_lpm: list
     holdout: np.ndarray
     baseline: Metrics
     findings: list
@@ -147,25 +154,49 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     hold = folds.holdout_at(raw.t_s)
     y = raw.flow_lpm
     baseline_lpm = base.model.predict(raw.duty_pct)[0]
-    preds = [baseline_lpm]
-    chain = {}
-    for step in sel.steps:
-        chain = {**chain, step.word: sel.chain[step.word]}
-        # each step's own baseline (refitted without the rows a dead zone or saturation explains)
-        theta = fit_final(build(step.base, sig, chain), sig.flow_lpm, folds.train)
-        preds.append(build(step.base, raw, chain).predict(theta))
-    findings = []
-    for i, step in enumerate(sel.steps):
-        before, after = preds[i], preds[i + 1]
-        p = sel.params[step.word]
-        eff = EFFECTS[step.word]
-        ptxt = ", ".join(f"{k} = {v:.4g} {eff.units.get(k, '')}".rstrip() for k, v in p.items())
-        evidence = (f"{eff.physics}; held-out squared error {-100 * step.gain:.1f} % over {len(step.test_after)} "
-                    f"blocked folds (margin -{100 * margins.gain[step.word]:.1f} %), lower in {step.wins} of them; "
-                    f"fitted {ptxt} (plausible)")
-        findings.append(Finding(step.word, where(raw.t_s, raw.duty_pct, y, after - before), evidence,
-                                round(float(step.gain), 6), _rmse((before - y)[hold]), _rmse((after - y)[hold]), p))
-    augmented = preds[-1]
+    steps, root = list(sel.steps), sel.reference
+    unconfirmed = {}
+    while True:
+        preds = _chain_predictions(steps, sel.chain, root, sig, raw, folds, rebase=bool(unconfirmed))
+        errs = [_rmse((p - y)[hold]) for p in [baseline_lpm] + preds]
+        bad = next((i for i in range(len(steps)) if errs[i + 1] >= errs[i]), None)
+        if bad is None:
+            break
+        unconfirmed[steps[bad].word] = (f"passed the cross-validation but did not lower the holdout RMSE "
+                                        f"({errs[bad]:.4f} -> {errs[bad + 1]:.4f} L/min): not asserted")
+        del steps[bad]
+    findings, steps_lpm, before_lpm = [], [], []
+    prev = baseline_lpm
+    for i, step in enumerate(steps):
+        alt = sel.alternatives.get(step.word)
+        alt_pred = None
+        if alt is not None:
+            kept = [s.word for s in steps[:i]]
+            alt_chain = {w: p for w, p in alt[1].items() if w in kept or w == alt[0].word}
+            alt_base = alt[0].base or (steps[i - 1].base if i else root)
+            theta = fit_final(build(alt_base, sig, alt_chain), sig.flow_lpm, folds.train)
+            alt_pred = build(alt_base, raw, alt_chain).predict(theta)
+            if _rmse((alt_pred - y)[hold]) >= errs[i]:
+                unconfirmed[alt[0].word] = f"alternative to {step.word} that did not lower the holdout RMSE"
+                alt_pred = None
+        note = ""
+        if alt_pred is not None:
+            note = (f"; {alt[0].word} also explains it (held-out gain {100 * alt[0].gain:.1f} % against "
+                    f"{100 * step.gain:.1f} %): this recording cannot tell a lag from a pure delay (they differ by "
+                    f"less than {100 * AMBIGUOUS:.0f} %, or the response is late by less than one sample); "
+                    f"the augmented model keeps {step.word}")
+        findings.append(_finding(step, sel.params[step.word], margins, raw, y, hold, prev, preds[i], note))
+        steps_lpm.append(preds[i])
+        before_lpm.append(prev)
+        if alt_pred is not None:
+            note = (f"; the alternative to {step.word} (held-out gain {100 * step.gain:.1f} %): this recording "
+                    f"cannot tell a lag from a pure delay (a smooth excitation shifts both alike, and within a "
+                    f"sample they are one thing)")
+            findings.append(_finding(alt[0], alt[2], margins, raw, y, hold, prev, alt_pred, note, step.word))
+            steps_lpm.append(alt_pred)
+            before_lpm.append(prev)
+        prev = preds[i]
+    augmented = prev
     model_info = {
         "baseline": {"kind": base.model.kind,
                      "source": "model file (held fixed)" if model is not None else
@@ -175,11 +206,40 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
                       "units": {f.effect: EFFECTS[f.effect].units for f in findings},
                       "plausible": {f.effect: EFFECTS[f.effect].plausible for f in findings},
                       "holdout": metrics(y[hold], augmented[hold]).to_dict()},
-        "rejected": sel.rejected,
+        "rejected": {**sel.rejected, **unconfirmed},
         "not_identifiable": sel.not_identifiable,
         "validation": {"holdout_fraction": float(np.mean(hold)), "cv_folds": folds.k,
                        "blocks": len(folds.block_fold), "block_s": float(np.diff(folds.block_edges_s)[0]),
-                       "work_rate_hz": sig.rate_hz, "margins": margins.to_dict()},
+                       "work_rate_hz": sig.rate_hz, "margins": margins.to_dict(),
+                       "confirmation": "an effect that passes the cross-validation is asserted only if it also "
+                                       "lowers the holdout RMSE; the holdout decides that yes or no and is never "
+                                       "fitted on"},
     }
-    return Diagnosis(raw.t_s, raw.duty_pct, y, baseline_lpm, augmented, preds[1:], hold,
+    return Diagnosis(raw.t_s, raw.duty_pct, y, baseline_lpm, augmented, steps_lpm, before_lpm, hold,
                      metrics(y, baseline_lpm), findings, locate(raw.t_s, raw.duty_pct, y, baseline_lpm), model_info)
+
+
+def _chain_predictions(steps, chain: dict, root, sig, raw, folds, rebase: bool) -> list:
+    """Prediction (recording rows) after each step of the chain, each with its own refitted baseline.
+
+    ``rebase``: an effect was dropped from the middle of the chain, so the PI weights of the later
+    steps (refitted with it present) are refitted under what is left.
+    """
+    preds, sub = [], {}
+    for step in steps:
+        sub = {**sub, step.word: chain[step.word]}
+        b = unbend(root, sig, sub, folds.train) if rebase else step.base
+        theta = fit_final(build(b, sig, sub), sig.flow_lpm, folds.train)
+        preds.append(build(b, raw, sub).predict(theta))
+    return preds
+
+
+def _finding(step, params: dict, margins: Margins, raw, y, hold, before, after, note: str,
+             alternative_to: str | None = None) -> Finding:
+    eff = EFFECTS[step.word]
+    ptxt = ", ".join(f"{k} = {v:.4g} {eff.units.get(k, '')}".rstrip() for k, v in params.items())
+    evidence = (f"{eff.physics}; held-out squared error {-100 * step.gain:.1f} % over {len(step.test_after)} "
+                f"blocked folds (margin -{100 * margins.gain[step.word]:.1f} %), lower in {step.wins} of them; "
+                f"fitted {ptxt} (plausible){note}")
+    return Finding(step.word, where(raw.t_s, raw.duty_pct, y, after - before), evidence, round(float(step.gain), 6),
+                   _rmse((before - y)[hold]), _rmse((after - y)[hold]), params, alternative_to)

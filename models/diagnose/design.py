@@ -7,7 +7,7 @@ model linear in its remaining unknowns, so the augmented model is::
     q(t) = min(F(t) + X(t) theta, q_sat)
 
 The hysteresis core's weights are fitted once on all training rows, under
-the effects named so far and jointly with an input-side effect under test
+the effects named so far and jointly with an effect under test that it absorbs
 (:func:`unbend`), never per fold: a PI of 50 operators refitted on 5/6 of the
 training blocks is far less stable on the sixth (rare excursions set the
 states of the wide operators) than the effects it is meant to reveal; the
@@ -17,8 +17,8 @@ scale* (``x dq/dx``: the response to a constant change of the coil current),
 the ways a baseline fitted with an effect present has bent to absorb it on
 average;
 with a model file the model's prediction is held fixed in ``F``. Each linear
-effect adds one column (asymmetric width, coil heating, creep amplitude,
-sensor offset). Whole-flow transforms (dead zone, supply-pressure gain,
+effect adds one column (asymmetric lift, coil heating, supply-pressure
+exponent, creep amplitude, sensor offset). Whole-flow transforms (dead zone,
 transport delay, lag) act on ``F`` and on every column; the hysteresis is
 time invariant and causal, so delaying its input and delaying its output are
 the same. Coil heating scales the effective duty by a few per cent at most
@@ -64,15 +64,21 @@ class Base:
         is a PI).
     shape_scale : Scaling
         Duty scaling of ``shape``'s input.
+    lift_w : ndarray
+        Non-negative weights over ``shape``'s thresholds (normalized output) that shape the
+        asymmetric-branch column: a fitted PI's weights alternate in sign, and a column that
+        weights each operator's own lift by them is erratic wherever operators part ways
+        (random holds).
     parent : Base, optional
         For a PI refitted jointly with an effect (:func:`unbend`): the baseline whose loop
-        offset, descending excess and slope the effect columns were fitted with.
+        offset, descending lift and slope the effect columns were fitted with.
     """
 
     refit: bool
     model: FittedModel
     shape: PIModel
     shape_scale: Scaling
+    lift_w: np.ndarray
     parent: "Base | None" = None
     cache: dict = field(default_factory=dict, repr=False)
 
@@ -81,7 +87,7 @@ class Base:
         return self.model.y_scale.half_range
 
     def response(self, sig: Signals) -> tuple:
-        """Prediction, loop offset, descending excess and ``x dq/dx`` (all L/min) on ``sig``'s duty (cached)."""
+        """Prediction, loop offset, descending lift and ``x dq/dx`` (all L/min) on ``sig``'s duty (cached)."""
         k = id(sig)
         hit = self.cache.get(k)
         if hit is None and self.parent is not None:
@@ -92,7 +98,7 @@ class Base:
             x_unit = self.shape_scale.to_unit(x)
             ops = pi_columns(self.shape.r, x_unit, self.shape.y0)
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
-            excess = fx.descending_excess(ops, x_unit, self.shape.w) * self.y_half
+            lift = fx.descending_lift(ops, x_unit, self.shape.r) @ self.lift_w * self.y_half
             # relative duty step of the central difference: a few threshold spacings of a 50-operator
             # PI (a fitted PI's slope within one segment is its noisiest feature), about the current
             # change of a coil some ten kelvin warm (0.393 %/K)
@@ -100,7 +106,7 @@ class Base:
             slope = (self.model.predict(x * (1 + eps))[0] - self.model.predict(x * (1 - eps))[0]) / (2 * eps)
             if len(self.cache) > 8:
                 self.cache.clear()
-            hit = self.cache[k] = (q, loop, excess, slope)
+            hit = self.cache[k] = (q, loop, lift, slope)
         return hit
 
 
@@ -111,6 +117,17 @@ class Base:
         if hit is None:
             hit = self.cache[k] = pi_columns(self.shape.r, self.shape_scale.to_unit(sig.duty_pct), self.shape.y0)
         return hit
+
+
+def major_loop_half_width(r: np.ndarray, w: np.ndarray, n: int = 2001) -> float:
+    """Half the input distance between the branches of a PI's major loop (normalized input), averaged
+    over the middle half of its output range (a fitted PI's branches may touch at a single level)."""
+    up = np.linspace(-1.0, 1.0, n)
+    # one cycle closes the loop (the first ascent starts below it), the second is measured
+    q = pi_columns(r, np.concatenate([up, up[::-1], up]), -np.inf)[n:] @ w
+    desc, asc = np.maximum.accumulate(q[:n][::-1]), np.maximum.accumulate(q[n:])
+    levels = np.linspace(0.25, 0.75, 51) * (q.max() - q.min()) + q.min()
+    return float(np.mean(np.interp(levels, asc, up) - np.interp(levels, desc, up))) / 2.0
 
 
 def pi_columns(r: np.ndarray, x_unit: np.ndarray, y0=np.nan) -> np.ndarray:
@@ -165,7 +182,7 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     """
     rate = sig.rate_hz
     n = len(sig.t_s)
-    F, loop, excess, slope = base.response(sig)
+    F, loop, lift, slope = base.response(sig)
     ref = F
     names: list[str] = []
     cols = []
@@ -174,11 +191,15 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         names += ["gain", "offset", "loop_width", "duty_scale"]
         F = np.zeros(n)
     if "asymmetric_hysteresis" in chain:
-        cols.append(excess * np.clip(ref, 0.0, None) / fx.FULL_FLOW_LPM)
+        # every operator's descending threshold lifted in proportion to the level (effects.descending_lift)
+        cols.append(lift)
         names.append("asymmetric_hysteresis")
     if "coil_heating" in chain:
         cols.append(heating_column(sig, chain["coil_heating"], slope))
         names.append("coil_heating")
+    if "supply_pressure" in chain:
+        cols.append(pressure_column(sig, ref))
+        names.append("supply_pressure")
     X = np.column_stack(cols) if cols else np.zeros((n, 0))
     F, X, ref = (at_sensor(v, sig, chain) for v in (F, X, ref))
     extra = []
@@ -216,9 +237,19 @@ def heating_column(sig: Signals, params: dict, slope: np.ndarray) -> np.ndarray:
     return -fx.ALPHA_CU_PER_K * rise * slope
 
 
+def pressure_column(sig: Signals, flow_lpm: np.ndarray) -> np.ndarray:
+    """Flow change per unit of the pressure exponent (L/min), to first order in the pressure change.
+
+    ``q ((p + p_atm) / (p_mean + p_atm))**n ~ q (1 + n ln((p + p_atm) / (p_mean + p_atm)))``: the
+    supply wanders by a few per cent of the absolute pressure, so the exponent ``n`` (1 for
+    choked flow) enters linearly.
+    """
+    return np.clip(flow_lpm, 0.0, None) * np.log(fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), 1.0))
+
+
 def at_sensor(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
-    """A flow at the valve (or every column of one) as the sensor sees it: dead zone and
-    supply-pressure gain, then transport delay and lag."""
+    """A flow at the valve (or every column of one) as the sensor sees it: dead zone, then
+    transport delay and lag."""
     gain = flow_gain(sig, chain)
     return dynamics(v * (gain if v.ndim == 1 else gain[:, None]), sig.rate_hz, chain)
 
@@ -228,7 +259,8 @@ def dynamics(v: np.ndarray, rate_hz: float, chain: dict) -> np.ndarray:
     if "transport_delay" in chain:
         v = fx.delayed(v, rate_hz, chain["transport_delay"]["delay_s"])
     if "valve_dynamics" in chain:
-        v = fx.first_order_lag(v, rate_hz, chain["valve_dynamics"]["tau_s"])
+        lag = chain["valve_dynamics"]
+        v = fx.first_order_lag(v, rate_hz, lag["tau_s"], phase=lag.get("phase", 1.0))
     return v
 
 
@@ -322,26 +354,32 @@ def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
     ys = Scaling.from_data(sig.flow_lpm[folds.train])
     core = fit_pi(xs.to_unit(sig.duty_pct), ys.to_unit(sig.flow_lpm), n=n, rows=folds.train)
     model = FittedModel("pi", core, xs, ys, meta={"source": "fitted on the training rows", "n": n})
-    return Base(True, model, core, xs)
+    return Base(True, model, core, xs, density(core, xs, sig, ys.to_unit(sig.flow_lpm), folds.train))
+
+
+def density(shape: PIModel, xs: Scaling, sig: Signals, y_unit: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Non-negative play-operator weights over ``shape``'s thresholds fitted to ``y_unit`` on ``rows``."""
+    Y = pi_columns(shape.r, xs.to_unit(sig.duty_pct), shape.y0)
+    return fit_weights(Y[rows], y_unit[rows], nonnegative=True)[0]
 
 
 def fixed_base(model: FittedModel, sig: Signals) -> Base:
     """A model file as the fixed baseline; its loop shape from its own PI, or a PI fitted to its prediction."""
     core = model.core
+    y_model = model.y_scale.to_unit(model.predict(sig.duty_pct)[0])
+    every = np.ones(len(sig), dtype=bool)  # the model's own prediction: no measurement is fitted
     if isinstance(core, PIModel):
-        return Base(False, model, core, model.x_scale)
+        return Base(False, model, core, model.x_scale, density(core, model.x_scale, sig, y_model, every))
     xs = Scaling.from_data(sig.duty_pct)
-    shape = fit_pi(xs.to_unit(sig.duty_pct), model.y_scale.to_unit(model.predict(sig.duty_pct)[0]), n=BASELINE_N)
-    return Base(False, model, shape, xs)
+    shape = fit_pi(xs.to_unit(sig.duty_pct), y_model, n=BASELINE_N)
+    return Base(False, model, shape, xs, density(shape, xs, sig, y_model, every))
 
 
 def flow_gain(sig: Signals, chain: dict) -> np.ndarray:
-    """Pointwise factor on the whole flow at the valve: dead zone times supply-pressure gain."""
+    """Pointwise factor on the whole flow at the valve: the dead zone's open mask."""
     g = np.ones(len(sig.t_s))
     if "dead_zone" in chain:
         g = g * fx.open_mask(sig.duty_pct, chain["dead_zone"]["cracking_pct"])
-    if "supply_pressure" in chain and sig.supply_bar is not None:
-        g = g * fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), chain["supply_pressure"]["exponent"])
     return g
 
 
@@ -355,18 +393,20 @@ def refit_rows(base: Base, sig: Signals, rows: np.ndarray) -> Base:
     m = base.model
     core = fit_pi(m.x_scale.to_unit(sig.duty_pct), m.y_scale.to_unit(sig.flow_lpm), n=len(m.core.r) - 1, rows=rows)
     model = FittedModel("pi", core, m.x_scale, m.y_scale, meta={**m.meta, "refitted": "without shut/saturated rows"})
-    return Base(True, model, core, m.x_scale)
+    return Base(True, model, core, m.x_scale, base.lift_w)
 
 
 
-#: Effects on the input side of the hysteresis: a PI fitted with them present has bent its
-#: weights to absorb them, so their test refits the weights jointly with the effect.
-INPUT_SIDE = ("coil_heating",)
+#: Effects a PI fitted with them present has bent its weights to absorb (the coil heating on its
+#: input side; the supply pressure, whose droop with flow is a function of the flow; an asymmetric
+#: loop, which a symmetric PI averages into its width), so their test refits the weights jointly
+#: with the effect.
+JOINT_WITH_PI = ("coil_heating", "supply_pressure", "asymmetric_hysteresis", "creep")
 
 
 def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
-    """The baseline PI with its weights refitted under ``chain``: through its dead zone, pressure
-    gain, delay and lag, jointly with its input-side effects.
+    """The baseline PI with its weights refitted under ``chain``: through its dead zone, delay and
+    lag, jointly with the effects of :data:`JOINT_WITH_PI`.
 
     Coil heating lowers the current the magnetics see along the thermal history;
     a PI fitted through it bends its weights to absorb what it can on average,
@@ -378,10 +418,10 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     excursions alone move, extrapolate wildly on held-out levels.
     Returns ``base`` itself for a model file (held fixed).
     """
-    words = [w for w in INPUT_SIDE if w in chain]
+    words = [w for w in JOINT_WITH_PI if w in chain]
     if not base.refit:
         return base
-    rest = {w: p for w, p in chain.items() if w not in INPUT_SIDE}
+    rest = {w: p for w, p in chain.items() if w not in JOINT_WITH_PI}
     d = build(base, sig, chain)
     H = d.X[:, [d.names.index(w) for w in words]] if words else np.zeros((len(sig), 0))
     fr = rows & d.fit_ok & (flow_gain(sig, chain) > 0)  # the shut rows of a dead zone say nothing of the PI
@@ -391,4 +431,4 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     w, offset, _ = fit_weights(Y[fr], ys.to_unit(sig.flow_lpm[fr]), H[fr] / ys.half_range)
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
-    return Base(True, model, core, m.x_scale, parent=base.parent or base)
+    return Base(True, model, core, m.x_scale, base.lift_w, parent=base.parent or base)

@@ -4,7 +4,7 @@ A detector tests an effect's physical signature the only way that survives
 the strongly autocorrelated residuals of a simulation: it fits the augmented
 model (baseline + the effect's physical law, :mod:`models.diagnose.effects`)
 and asks whether it predicts *held-out* blocks better. Nonlinear parameters
-(time constants, delay, exponent, cracking duty, full-open flow) are searched
+(time constants, delay, cracking duty, full-open flow) are searched
 on a grid; for each cross-validation fold the grid point is chosen on that
 fold's training rows only, so the held-out error is honest. An effect is
 named when the pooled held-out error falls by more than its calibrated margin
@@ -27,7 +27,8 @@ from scipy.optimize import minimize_scalar
 
 from . import effects as fx
 from .calibrate import Margins
-from .design import INPUT_SIDE, Base, CVResult, Design, build, cross_validate, fit_final, flow_gain, refit_rows, unbend
+from .design import (JOINT_WITH_PI, Base, CVResult, Design, build, cross_validate, fit_final, flow_gain,
+                     major_loop_half_width, refit_rows, unbend)
 from .folds import Folds
 from .signals import Signals
 
@@ -39,7 +40,19 @@ MAX_EFFECTS = 4
 #: A further effect must gain at least this fraction of what the strongest one did: no effect's
 #: law is exact, and the structure its misfit leaves (a few per cent of its gain on the suite)
 #: is otherwise taken up by another detector.
-SECONDARY = 0.3
+SECONDARY = 0.1
+#: A fold counts in the majority vote only when the effect changes its held-out error by more
+#: than this fraction: a dead zone or a saturation touches only the blocks that reach the range
+#: ends, and the folds it leaves alone say nothing either way.
+CHANGED = 0.002
+#: A lag and a pure delay shift a smooth response alike (to first order both are ``-tau dq/dt``);
+#: only steps and fast content tell them apart. When the other's held-out gain is within this of
+#: the named one's, the recording cannot separate them and both are reported, each as the other's
+#: alternative.
+AMBIGUOUS = 0.02
+#: The two words of the flow's time response, with their time parameter.
+DYNAMIC = ("valve_dynamics", "transport_delay")
+TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
 
 
 @dataclass(frozen=True)
@@ -75,10 +88,13 @@ def _always(sig, base):
 
 
 def _dead_zone_grid(sig: Signals, base: Base) -> dict:
-    # cracking duties just above the low duty quantiles: each masks the rows at or below one
-    # of them, so a held level right at the cracking duty is either shut or open, not both
-    q = np.percentile(sig.duty_pct, [0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
-    c = np.unique(q) + 1e-6
+    # cracking duties just above the lowest duty and the low duty quantiles (each masks the rows
+    # at or below one of them, so a held level right at the cracking duty is either shut or open,
+    # not both), and evenly over the lower 40 % of the duty span (a recording that rests at one
+    # low level, as a ventilator's expiration does, has all its low quantiles at that level)
+    q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
+    span = np.linspace(q[0], q[0] + 0.4 * np.ptp(sig.duty_pct), 41)
+    c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
     return {"cracking_pct": c[c <= 50.0]}
 
 
@@ -113,8 +129,10 @@ def _dead_zone_applicable(sig, base):
 
 EFFECTS = {
     "asymmetric_hysteresis": Effect(
-        "asymmetric_hysteresis", "descending branch held above the symmetric loop by a * (flow / 200 L/min) * its width",
-        {"extra_width": "relative (1 = twice as wide) at full flow"}, {"extra_width": (0.01, 5.0)},
+        "asymmetric_hysteresis", "every play operator's descending threshold lifted in proportion to the input level "
+        "(generalized PI), to first order, the PI refitted with it",
+        {"extra_width": "relative (1 = twice as wide) at full flow",
+         "lift_pct": "% duty (descending thresholds at the top of the range)"}, {"lift_pct": (0.005, 20.0)},
         lambda sig, base: {}),
     "coil_heating": Effect(
         "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty / (1 + 0.00393 T), "
@@ -123,18 +141,19 @@ EFFECTS = {
          "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K"},
         {"rise55_k": (0.05, 200.0), "tau_s": (10.0, 3600.0), "copper_law_ratio": (0.3, 3.0)}, _heating_grid),
     "supply_pressure": Effect(
-        "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column",
+        "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
+        "to first order, the PI refitted with it",
         {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
-        {"exponent": (0.3, 2.0)}, lambda sig, base: {"exponent": np.array([0.25, 0.5, 0.75, 1.0, 1.25, 1.6, 2.0])},
-        _no_supply),
+        {"exponent": (0.3, 2.0)}, lambda sig, base: {}, _no_supply),
     "valve_dynamics": Effect(
-        "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q",
-        {"tau_s": "s"}, {"tau_s": (0.0005, 2.0)},
-        lambda sig, base: {"tau_s": np.geomspace(0.1 / sig.rate_hz, 1.5, 20)}),
+        "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q, sampled with the command "
+        "held (phase 1) or already seen within its sample (phase 0)",
+        {"tau_s": "s", "phase": "- (share of the previous sample's command)"}, {"tau_s": (0.0, 2.0)},
+        lambda sig, base: {"tau_s": np.geomspace(0.005 / sig.rate_hz, 1.5, 40), "phase": np.linspace(0.0, 1.0, 5)}),
     "transport_delay": Effect(
         "transport_delay", "pure delay from command to measured flow",
-        {"delay_s": "s"}, {"delay_s": (0.0005, 1.0)},
-        lambda sig, base: {"delay_s": np.geomspace(0.1 / sig.rate_hz, 0.8, 20)}),
+        {"delay_s": "s"}, {"delay_s": (0.0, 1.0)},
+        lambda sig, base: {"delay_s": np.geomspace(0.005 / sig.rate_hz, 0.8, 48)}),
     "dead_zone": Effect(
         "dead_zone", "no flow while the duty is below the cracking duty",
         {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, _dead_zone_grid, _dead_zone_applicable),
@@ -176,6 +195,8 @@ class Candidate:
         Nonlinear parameters chosen on all training rows.
     test_before, test_after : ndarray
         Held-out squared error per fold.
+    changed : int
+        Folds whose held-out error the effect changes by more than :data:`CHANGED`.
     """
 
     word: str
@@ -185,6 +206,11 @@ class Candidate:
     test_before: np.ndarray
     test_after: np.ndarray
     base: Base | None = None
+    changed: int = 0
+
+    def majority(self, min_wins: int) -> bool:
+        """Lower in ``min_wins`` folds, or in a majority (at least two) of the folds it changes."""
+        return self.wins >= min(min_wins, self.changed // 2 + 1) and self.wins >= 2
 
 
 #: Static effects at the end of the range: the baseline is refitted without the rows they explain.
@@ -202,7 +228,7 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
     after = test[pick, np.arange(folds.k)]
     best = points[int(np.argmin(train.sum(axis=1)))]
     new_base = None
-    if word in INPUT_SIDE and base.refit:
+    if word in JOINT_WITH_PI and base.refit:
         new_base = design(word, base, sig, {**chain, word: best}, folds)[1]
     if word in STATIC and base.refit:
         ch = {**chain, word: best}
@@ -212,13 +238,15 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
         if cv.test.sum() < after.sum():
             after, new_base = cv.test, refit
     gain = 1.0 - after.sum() / before.test.sum()
-    return Candidate(word, float(gain), int(np.sum(after < before.test)), dict(best), before.test, after, new_base)
+    changed = np.abs(after - before.test) > CHANGED * before.test
+    return Candidate(word, float(gain), int(np.sum((after < before.test) & changed)), dict(best), before.test, after,
+                     new_base, int(changed.sum()))
 
 
 def design(word: str, base: Base, sig: Signals, chain: dict, folds: Folds) -> tuple[Design, Base]:
     """The design of ``chain`` when testing ``word``, and its base (the PI refitted jointly with an
-    input-side effect, :func:`models.diagnose.design.unbend`)."""
-    b = unbend(base, sig, chain, folds.train) if word in INPUT_SIDE else base
+    effect it absorbs, :func:`models.diagnose.design.unbend`)."""
+    b = unbend(base, sig, chain, folds.train) if word in JOINT_WITH_PI else base
     return build(b, sig, chain), b
 
 
@@ -260,12 +288,16 @@ def train_sse(design: Design, y: np.ndarray, rows: np.ndarray) -> float:
     return float(e @ e)
 
 
-def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, sig: Signals) -> dict:
+def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, sig: Signals, base: Base) -> dict:
     """The effect's parameters in the units of DESIGN.md's effect table (see ``Effect.units``)."""
     p = {k: float(v) for k, v in chain[word].items()}
     coef = dict(zip(design.names, theta))
     if word == "asymmetric_hysteresis":
-        p["extra_width"] = float(coef[word])
+        # lift of the descending thresholds at the top of the range, in duty and over the major loop's half-width
+        p["lift_pct"] = float(coef[word]) * base.shape_scale.half_range
+        h = major_loop_half_width(base.shape.r, base.lift_w)
+        if h > 1e-3:
+            p["extra_width"] = float(coef[word]) / h
     elif word == "creep":
         p["amplitude"] = float(coef[word])
     elif word == "coil_heating" and sig.coil_temp_c is not None:
@@ -276,6 +308,7 @@ def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, s
     elif word == "sensor_offset":
         p["offset_lpm"] = float(coef[word])
     elif word == "supply_pressure":
+        p["exponent"] = float(coef[word])
         lo, hi = np.percentile(sig.supply_bar, [1, 99])
         p["wander_bar"] = float(hi - lo) / 2.0
     return p
@@ -330,6 +363,12 @@ class Selection:
         Word -> why it was not named (best gain, folds, margin, plausibility).
     not_identifiable : dict
         Word -> why it cannot be tested on this recording with this baseline.
+    alternatives : dict
+        Named word -> ``(candidate, chain, physical params)`` of the other word of :data:`DYNAMIC`
+        when the recording cannot tell a lag from a delay: the same chain with the other law
+        in its place.
+    reference : Base
+        What the first tests were held against (:func:`reference`).
     """
 
     chain: dict = field(default_factory=dict)
@@ -337,6 +376,8 @@ class Selection:
     params: dict = field(default_factory=dict)
     rejected: dict = field(default_factory=dict)
     not_identifiable: dict = field(default_factory=dict)
+    alternatives: dict = field(default_factory=dict)
+    reference: Base | None = None
 
 
 def reference(base: Base, sig: Signals, folds: Folds) -> tuple[Base, CVResult]:
@@ -369,47 +410,72 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
             words.append(w)
     y = sig.flow_lpm
     cur, before = reference(base, sig, folds)
+    sel.reference = cur
     while words and len(sel.chain) < MAX_EFFECTS:
-        cands = []
+        cands = {}
         for w in words:
             if progress:
                 progress(w)
-            cands.append(test_effect(w, sel.chain, before, cur, sig, folds))
+            cands[w] = test_effect(w, sel.chain, before, cur, sig, folds)
         passing = []
-        for c in cands:
+        for c in cands.values():
             need = margins.gain[c.word]
             if sel.steps:  # the law of a named effect leaves part of it for other detectors to take up
                 need = max(need, SECONDARY * sel.steps[0].gain)
-            if c.gain > need and c.wins >= margins.min_wins:
+            if c.gain > need and c.majority(margins.min_wins):
                 passing.append(c)
             else:
                 sel.rejected[c.word] = (f"held-out error {-100 * c.gain:+.2f} % (needs below -{100 * need:.2f} %), "
-                                        f"lower in {c.wins}/{len(c.test_after)} folds (needs {margins.min_wins})")
+                                        f"lower in {c.wins}/{len(c.test_after)} folds, {c.changed} changed "
+                                        f"(needs {margins.min_wins}, or a majority of two or more changed)")
         accepted = None
         for c in sorted(passing, key=lambda c: -c.gain):
-            b = cur if c.word in INPUT_SIDE else c.base or cur
-            params = refine(c.word, sel.chain, c.params, b, sig, folds)
-            chain = {**sel.chain, c.word: params}
-            d, b = design(c.word, b, sig, chain, folds)
-            phys = physical_params(c.word, chain, d, fit_final(d, y, folds.train), sig)
-            why = implausible(c.word, phys) or unresolved(c.word, phys, sig, b)
-            if why:
-                sel.rejected[c.word] = f"fits better but is not physical or not resolved: {why}"
+            found = _accept(c, sel.chain, cur, sig, folds)
+            if isinstance(found, str):
+                sel.rejected[c.word] = f"fits better but is not physical or not resolved: {found}"
                 continue
-            c.params = params
-            if c.word in INPUT_SIDE:
-                c.base = b
-            accepted = (c, chain, phys)
+            accepted = found
             break
         if accepted is None:
             break
         c, sel.chain, phys = accepted
+        prev = cur
         # the PI's weights refitted under the named effects, so the next tests start from its best
         cur = c.base = unbend(c.base or cur, sig, sel.chain, folds.train)
         sel.params[c.word] = phys
         sel.steps.append(c)
         sel.rejected.pop(c.word, None)
-        words = [w for w in words if w != c.word and w not in sel.rejected or
+        done = {c.word}
+        if c.word in DYNAMIC:
+            other = cands.get(DYNAMIC[1 - DYNAMIC.index(c.word)])
+            # within a sample a lag and a delay are one thing: how late the sample is depends on
+            # when in the period the flow was read (a lag whose command moves between samples
+            # answers as an interpolated delay)
+            sub_sample = phys[TIME_PARAM[c.word]] * sig.rate_hz < 1.0
+            if (other is not None and any(o is other for o in passing)
+                    and (c.gain - other.gain < AMBIGUOUS or sub_sample)):
+                alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds)
+                if not isinstance(alt, str):
+                    sel.alternatives[c.word] = alt
+                    sel.rejected.pop(other.word, None)
+                    done.add(other.word)
+        words = [w for w in words if w not in done and w not in sel.rejected or
                  (w in sel.rejected and not sel.rejected[w].startswith("fits better"))]
         before = cross_validate(build(cur, sig, sel.chain), y, folds)
     return sel
+
+
+def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds):
+    """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or why not."""
+    b = cur if c.word in JOINT_WITH_PI else c.base or cur
+    params = refine(c.word, chain, c.params, b, sig, folds)
+    chain = {**chain, c.word: params}
+    d, b = design(c.word, b, sig, chain, folds)
+    phys = physical_params(c.word, chain, d, fit_final(d, sig.flow_lpm, folds.train), sig, b)
+    why = implausible(c.word, phys) or unresolved(c.word, phys, sig, b)
+    if why:
+        return why
+    c.params = params
+    if c.word in JOINT_WITH_PI:
+        c.base = b
+    return c, chain, phys

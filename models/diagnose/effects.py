@@ -26,12 +26,17 @@ HEATING_REF_DUTY_PCT = 55.0
 FULL_FLOW_LPM = 200.0
 
 
-def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None) -> np.ndarray:
-    """``tau dy/dt = x - y`` with ``x`` held between samples (exact zero-order-hold discretization).
+def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None, phase: float = 1.0) -> np.ndarray:
+    """``tau dy/dt = x - y`` sampled, ``y[k] = a y[k-1] + (1 - a) ((1 - phase) x[k] + phase x[k-1])``.
 
-    ``y[k+1] = a y[k] + (1 - a) x[k]``, ``a = exp(-1 / (rate tau))``: a sample
-    reflects the input up to the previous sample, as a valve driven by a
-    sampled command does; as ``tau -> 0`` it tends to a one-sample delay.
+    ``a = exp(-1 / (rate tau))``. With ``phase`` 1 the input is held between
+    samples (exact zero-order hold): a sample reflects the input up to the
+    previous sample, as a valve driven by a sampled command and read just
+    before the next command; as ``tau -> 0`` it tends to a one-sample delay.
+    With ``phase`` 0 a sample already reflects its own row's input (a flow read
+    at the end of the period, or averaged over it), and as ``tau -> 0`` it
+    tends to the input itself. Which one a recording follows is its timing
+    convention, not the valve's physics.
 
     Parameters
     ----------
@@ -43,16 +48,19 @@ def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None) -> np.
         Time constant (s); 0 returns ``x``.
     x0 : float or ndarray, optional
         Initial output (default: the first input, i.e. starting at rest).
+    phase : float
+        Share of the previous sample's input in each update, 0..1.
     """
     x = np.asarray(x, dtype=np.float64)
     if tau_s <= 0:
         return x.copy()
     a = np.exp(-1.0 / (rate_hz * tau_s))
     y0 = np.asarray(x[0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=np.float64), x.shape[1:]))
-    # y[k] = a y[k-1] + (1 - a) x[k-1]: filter the input shifted by one sample, starting at y0
-    xs = np.concatenate([np.broadcast_to(y0, (1,) + x.shape[1:]), x[:-1]], axis=0)
+    # y[k] = a y[k-1] + (1 - a) u[k], u = (1 - phase) x[k] + phase x[k-1] (x[-1] = y0: at rest), from y0
+    prev = np.concatenate([np.broadcast_to(y0, (1,) + x.shape[1:]), x[:-1]], axis=0)
+    u = (1.0 - phase) * x + phase * prev if phase != 1.0 else prev
     zi = (a * y0)[None, ...] if x.ndim > 1 else np.atleast_1d(a * y0)
-    y, _ = lfilter([1.0 - a], [1.0, -a], xs, axis=0, zi=zi)
+    y, _ = lfilter([1.0 - a], [1.0, -a], u, axis=0, zi=zi)
     return y
 
 
@@ -121,7 +129,11 @@ def pressure_gain(supply_bar: np.ndarray, ref_bar: float, exponent: float) -> np
 
 
 def reversal_step(flow_lpm: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """Signed flow change between the last two reversals (L/min), held until the next reversal.
+    """Signed flow change between the last two turning points (L/min), held until the next reversal.
+
+    The recording starts at rest at its first input (Eq. 3 with ``y_i0 = x(0)``),
+    so its start is the first turning point: from the first reversal on, the
+    step is the flow change since the start.
 
     Parameters
     ----------
@@ -134,8 +146,8 @@ def reversal_step(flow_lpm: np.ndarray, direction: np.ndarray) -> np.ndarray:
     flow_lpm = np.asarray(flow_lpm, dtype=np.float64)
     rev = np.flatnonzero((direction[1:] != direction[:-1]) & (direction[:-1] != 0)) + 1
     # the reversal instant is the last sample of the old branch (the extreme of the input)
-    at = flow_lpm[np.maximum(rev - 1, 0)]
-    step = np.concatenate([[0.0], np.diff(at)])  # step j holds from reversal j on (none before the second)
+    at = np.concatenate([[flow_lpm[0]], flow_lpm[np.maximum(rev - 1, 0)]])
+    step = np.diff(at)  # step j holds from reversal j on
     which = np.full(len(flow_lpm), -1)
     which[rev] = np.arange(len(rev))
     np.maximum.accumulate(which, out=which)
@@ -152,16 +164,47 @@ def creep(flow_lpm: np.ndarray, direction: np.ndarray, rate_hz: float, tau_s: fl
     return first_order_lag(reversal_step(flow_lpm, direction), rate_hz, tau_s, 0.0)
 
 
-def descending_excess(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """How far the play operators hold the output above the input: ``sum_i w_i max(y_i - x, 0)``.
+def descending_lift(play_out: np.ndarray, x_unit: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Sensitivity of each play operator to a descending threshold that grows with the input level.
 
-    On a descending branch each operator lags the input from above
-    (``y_i = x + r_i`` once it moves), so this is the part of the loop width
-    the descending branch adds, in the output unit of ``w``; it is zero on an
-    ascending branch. Scaling it by the flow level gives a descending branch
-    that widens at high flow.
+    The generalized play operator (Al Janaideh, Rakheja & Su 2009) of an
+    asymmetric valve is ``y_i = max(x - r_i, min(x + r_i + l(x), y_i(k-1)))``
+    with a lift ``l(x) = c s(x)`` of its descending threshold, ``s`` the position
+    in the input range (0 at the bottom, 1 at the top). To first order in ``c``,
+    ``dy_i/dc`` is ``s(x)`` while the descending bound drives the operator, keeps
+    the value it had when the bound let go, and is 0 once the ascending bound
+    takes over (the ascending side of Eq. 1 does not move).
+
+    Parameters
+    ----------
+    play_out : ndarray, shape (N, m)
+        Symmetric play operator outputs, Eq. (1), normalized input units.
+    x_unit : ndarray, shape (N,)
+        Normalized input in [-1, 1].
+    r : ndarray, shape (m,)
+        Thresholds.
+
+    Returns
+    -------
+    ndarray, shape (N, m)
+        ``dy_i/dc`` per row and operator, in [0, 1].
     """
-    return np.maximum(play_out - np.asarray(x_unit)[:, None], 0.0) @ np.asarray(w)
+    x = np.asarray(x_unit, dtype=np.float64)
+    gap = play_out - x[:, None]
+    tol = 1e-9 + 1e-9 * np.abs(r)
+    dx = np.r_[0.0, np.diff(x)][:, None]
+    wide = r > tol
+    # a zero threshold sits on both bounds: only the motion says which one drives it (at rest,
+    # the lifted descending bound keeps holding it up)
+    top = np.where(wide, gap >= r - tol, dx < 0)
+    bottom = np.where(wide, gap <= -r + tol, dx > 0)
+    s = np.clip((x + 1.0) / 2.0, 0.0, 1.0)
+    pinned = top | bottom
+    pinned[0] = True                                     # at rest at the first input: no lift yet
+    value = np.where(top, s[:, None], 0.0)
+    idx = np.where(pinned, np.arange(len(x))[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    return np.take_along_axis(value, idx, axis=0)
 
 
 def loop_offset(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -106,8 +106,7 @@ def diagnose_plot(diag: Diagnosis, folder) -> dict:
     plt.close(fig)
     files["location"] = "location.png"
 
-    prev = diag.baseline_lpm
-    for i, (f, pred) in enumerate(zip(diag.findings, diag.steps_lpm), start=1):
+    for i, (f, pred, prev) in enumerate(zip(diag.findings, diag.steps_lpm, diag.before_lpm), start=1):
         delta = pred - prev
         resid = diag.flow_lpm - prev
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -136,7 +135,6 @@ def diagnose_plot(diag: Diagnosis, folder) -> dict:
         fig.savefig(folder / name, dpi=110)
         plt.close(fig)
         files[name] = name
-        prev = pred
     return files
 
 
