@@ -118,6 +118,17 @@ class Base:
             hit = self.cache[k] = pi_columns(self.shape.r, self.shape_scale.to_unit(sig.duty_pct), self.shape.y0)
         return hit
 
+    def regressors_at_sensor(self, sig: Signals, chain: dict) -> np.ndarray:
+        """:meth:`regressors` through the dead zone, delay and lag of ``chain`` (cached: a joint test
+        refits the PI under the same chain at every grid point of the effect it tests)."""
+        k = ("S", id(sig), repr(sorted(chain.items())))
+        hit = self.cache.get(k)
+        if hit is None:
+            for old in [key for key in self.cache if isinstance(key, tuple) and key[0] == "S"]:
+                del self.cache[old]  # one chain at a time: each entry is N x m
+            hit = self.cache[k] = at_sensor(self.regressors(sig), sig, chain)
+        return hit
+
 
 def major_loop_half_width(r: np.ndarray, w: np.ndarray, n: int = 2001) -> float:
     """Half the input distance between the branches of a PI's major loop (normalized input), averaged
@@ -427,7 +438,7 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     fr = rows & d.fit_ok & (flow_gain(sig, chain) > 0)  # the shut rows of a dead zone say nothing of the PI
     m = base.model
     ys = m.y_scale
-    Y = at_sensor(base.regressors(sig), sig, rest)
+    Y = base.regressors_at_sensor(sig, rest)
     w, offset, _ = fit_weights(Y[fr], ys.to_unit(sig.flow_lpm[fr]), H[fr] / ys.half_range)
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
