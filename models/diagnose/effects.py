@@ -22,8 +22,6 @@ ALPHA_CU_PER_K = 0.00393
 P_ATM_BAR = 1.01325
 #: Duty at which DESIGN.md states the steady coil temperature rise (%).
 HEATING_REF_DUTY_PCT = 55.0
-#: Full-scale flow of the valve class (L/min), DESIGN.md: 0-200 L/min.
-FULL_FLOW_LPM = 200.0
 
 
 def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None, phase: float = 1.0) -> np.ndarray:
