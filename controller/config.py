@@ -1,14 +1,25 @@
 """``config/run.toml``: the closed-loop run's settings, and the controllers they describe.
 
-Paths in the file are relative to the file's folder. Unknown keys and wrong
-types are bad input (one line naming the file and the key, exit 2).
+Paths in the file are relative to the file's folder. The file's schema is
+the structs below, one per section (:class:`RunFile` holds them; the
+framework and how to add a key: :mod:`models.schema`). Unknown keys, wrong
+types, non-finite numbers, values out of range and broken cross-field rules
+are bad input: one line naming the file and the dotted key, exit 2, e.g.
+``config/run.toml: loop.rate_hz: must be > 0 (got 0)``. Safety settings
+come first: the watchdog (``loop.stale_ms``) and the valve node's timeout
+(``valve_node.command_timeout_ms``) finite and positive, the safe and limit
+duties within 0-100 %, the Zenoh key id a plain key chunk (no wildcards).
 """
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import Annotated, Literal
+
+import msgspec
 
 from models.recording import InputError
+from models.schema import Finite, KeyId, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
 from .laws import control
@@ -16,24 +27,113 @@ from .loop import LoopSettings
 
 DEFAULT_RUN = "config/run.toml"
 
-#: section -> key -> default (the type of the default is the type accepted).
-SCHEMA: dict[str, dict] = {
-    "": {"controller": "ff+kf", "plant": "sim", "reference": "profile", "duration_s": 20.0,
-         "model": "valve_model.json", "plant_config": "plant.toml", "seed": 0},
-    "loop": {"rate_hz": 1000.0, "stale_ms": 50.0, "ref_stale_ms": 500.0, "safe_duty_pct": 0.0,
-             "flow_max_lpm": 200.0, "status_hz": 10.0, "spin_us": 300.0, "rt_priority": 0},
-    "limits": {"duty_min_pct": 0.0, "duty_max_pct": 100.0, "rate_pct_per_s": 10000.0},
-    "profile": {},  # keyword arguments of plant_sim.protocols.BreathProfile
-    "valve": {"tau_s": 0.0, "delay_s": 0.0},
-    "effects": {},  # effect words of the embedded simulated valve
-    "feedforward": {"lead_lag_s": 0.005, "preview": True},
-    "pid": {"kp": 0.0, "ki": 0.0, "kd": 0.0, "tf_s": 0.003, "tt_s": 0.01},
-    "ff_pid": {"kp": 0.0, "ki": 0.0, "kd": 0.0, "tf_s": 0.003, "tt_s": 0.01},
-    "kf": {"q_flow_lpm": 1.0, "q_bias_lpm": 0.05, "r_lpm": 0.5},
-    "zenoh": {"id": "insp", "listen": ["tcp/127.0.0.1:7447"], "connect": [], "config": "zenoh.json5"},
-    "valve_node": {"rate_hz": 1000.0, "command_timeout_ms": 100.0},
-}
-_FREE = {"profile", "effects"}
+#: Fastest loop or node rate accepted, Hz (the controller runs at 1 kHz; delay lines are sized by rate).
+MAX_RATE_HZ = 100_000.0
+RateHz = Annotated[float, msgspec.Meta(gt=0.0, le=MAX_RATE_HZ)]
+#: Longest valve lag or delay the controllers model, s (the effects' own limits: plant_sim.effects).
+Seconds10 = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
+Seconds60 = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
+
+
+class _Section(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A run-file section: unknown keys are refused."""
+
+
+class Loop(_Section):
+    rate_hz: RateHz = 1000.0
+    stale_ms: Positive = 50.0             # watchdog: no measurement for this long -> safe state
+    ref_stale_ms: Positive = 500.0
+    safe_duty_pct: Percent = 0.0
+    flow_max_lpm: Positive = 200.0
+    status_hz: Positive = 10.0
+    spin_us: NonNegative = 300.0
+    rt_priority: Annotated[int, msgspec.Meta(ge=0, le=99)] = 0
+
+
+class Limits(_Section):
+    duty_min_pct: Percent = 0.0
+    duty_max_pct: Percent = 100.0
+    rate_pct_per_s: Positive = 10000.0
+
+    def __post_init__(self):
+        if not self.duty_min_pct < self.duty_max_pct:
+            raise ValueError(f"duty_min_pct: must be < duty_max_pct (got {self.duty_min_pct:g} >= {self.duty_max_pct:g})")
+
+
+class Valve(_Section):
+    tau_s: Seconds60 = 0.0
+    delay_s: Seconds10 = 0.0
+
+
+class Feedforward(_Section):
+    lead_lag_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.005
+    preview: bool = True
+
+
+class PID(_Section):
+    kp: NonNegative = 0.0
+    ki: NonNegative = 0.0
+    kd: NonNegative = 0.0
+    tf_s: Positive = 0.003
+    tt_s: Positive = 0.01
+
+
+class KF(_Section):
+    q_flow_lpm: NonNegative = 1.0
+    q_bias_lpm: NonNegative = 0.05
+    r_lpm: Positive = 0.5
+
+
+class Zenoh(_Section):
+    id: KeyId = "insp"
+    listen: list[NonEmpty] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: list[NonEmpty] = msgspec.field(default_factory=list)
+    config: str = "zenoh.json5"
+
+
+class ValveNode(_Section):
+    rate_hz: RateHz = 1000.0
+    command_timeout_ms: Positive = 100.0  # no cmd/duty for this long -> the node closes its valve
+
+
+class RunFile(_Section):
+    """The whole file: top-level keys, then one struct per section."""
+
+    controller: str = "ff+kf"
+    plant: Literal["sim", "zenoh"] = "sim"
+    reference: Literal["profile", "zenoh"] = "profile"
+    duration_s: NonNegative = 20.0
+    model: NonEmpty = "valve_model.json"
+    plant_config: NonEmpty = "plant.toml"
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0
+    loop: Loop = msgspec.field(default_factory=Loop)
+    limits: Limits = msgspec.field(default_factory=Limits)
+    profile: dict = msgspec.field(default_factory=dict)  # keyword arguments of plant_sim.protocols.BreathProfile
+    valve: Valve = msgspec.field(default_factory=Valve)
+    effects: dict = msgspec.field(default_factory=dict)  # effect words of the embedded simulated valve
+    feedforward: Feedforward = msgspec.field(default_factory=Feedforward)
+    pid: PID = msgspec.field(default_factory=PID)
+    ff_pid: PID = msgspec.field(default_factory=PID)
+    kf: KF = msgspec.field(default_factory=KF)
+    zenoh: Zenoh = msgspec.field(default_factory=Zenoh)
+    valve_node: ValveNode = msgspec.field(default_factory=ValveNode)
+
+    def __post_init__(self):
+        if self.controller not in control.MODES:
+            raise ValueError(f"controller: {self.controller!r} is not one of {', '.join(control.MODES)}")
+
+
+#: section name -> its struct ("" : the top-level keys); sections typed ``dict`` are free tables.
+SECTIONS: dict[str, type] = {"": RunFile, **{
+    f.name: f.type for f in msgspec.structs.fields(RunFile) if isinstance(f.type, type) and issubclass(f.type, _Section)}}
+
+
+def section_type(section: str, key: str):
+    """The declared type of ``[section] key`` (None when the file has no such key)."""
+    struct = SECTIONS.get(section)
+    if struct is None:
+        return None
+    return next((f.type for f in msgspec.structs.fields(struct) if f.name == key), None)
 
 
 @dataclass(frozen=True)
@@ -58,45 +158,62 @@ class RunConfig:
                             status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"])
 
 
-def _check(path: str, name: str, value, default):
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-    elif isinstance(default, float):
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        value = float(value) if ok else value
-    elif isinstance(default, list):
-        ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
-    else:
-        ok = isinstance(value, type(default))
-    if not ok:
-        raise InputError(f"{path}: key '{name}': expected {type(default).__name__}, got {value!r}")
-    return value
+def check_sections(sections: dict, source: str) -> dict:
+    """Validate ``sections`` (``{"": top keys, name: keys}``, as :class:`RunConfig` holds them) against the schema.
+
+    Returns the sections with defaults filled in and numbers as floats; used on
+    the file as read and on every changed copy (sweep candidates).
+    """
+    doc = {**sections.get("", {}), **{k: v for k, v in sections.items() if k}}
+    f = convert(doc, RunFile, source)
+    out = {"": {}}
+    for fld in msgspec.structs.fields(RunFile):
+        value = getattr(f, fld.name)
+        if isinstance(value, _Section):
+            out[fld.name] = msgspec.structs.asdict(value)
+        elif isinstance(value, dict):
+            out[fld.name] = dict(value)
+        else:
+            out[""][fld.name] = value
+    _check_effects(out["effects"], source)
+    _check_profile(out["profile"], source)
+    return out
+
+
+def _check_effects(effects: dict, source: str) -> None:
+    from plant_sim.effects import EFFECTS, check_effect
+
+    for name, value in effects.items():
+        if name not in EFFECTS:
+            raise InputError(f"{source}: effects.{name}: unknown effect (one of {', '.join(EFFECTS)})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{source}: effects.{name}: expected a number (got {value!r})")
+        try:
+            effects[name] = check_effect(name, value)
+        except InputError:
+            lo, hi = EFFECTS[name].limits
+            raise InputError(f"{source}: effects.{name}: must be within {lo:g}..{hi:g} {EFFECTS[name].unit} "
+                             f"(got {value})") from None
+
+
+def _check_profile(profile: dict, source: str) -> None:
+    from plant_sim.protocols import BreathProfile
+
+    try:
+        BreathProfile(**profile)
+    except TypeError as exc:
+        raise InputError(f"{source}: profile: {exc}".replace("BreathProfile.__init__() got an ", "")) from None
+    except ValueError as exc:
+        raise InputError(f"{source}: profile: {str(exc).removeprefix('breath profile: ')}") from None
 
 
 def load_run_config(path: str | os.PathLike = DEFAULT_RUN) -> RunConfig:
-    """Read and check a run configuration."""
+    """Read and check a run configuration (bad input: :class:`InputError` naming the file and key)."""
     path = os.fspath(path)
     doc = read_toml(path)
-    sections = {name: dict(keys) for name, keys in SCHEMA.items()}
-    for key, value in doc.items():
-        if isinstance(value, dict):
-            if key not in SCHEMA or key == "":
-                raise InputError(f"{path}: section '{key}': unknown (one of {', '.join(s for s in SCHEMA if s)})")
-            for k, v in value.items():
-                if key in _FREE:
-                    sections[key][k] = v
-                elif k not in SCHEMA[key]:
-                    raise InputError(f"{path}: key '{key}.{k}': unknown")
-                else:
-                    sections[key][k] = _check(path, f"{key}.{k}", v, SCHEMA[key][k])
-        elif key in SCHEMA[""]:
-            sections[""][key] = _check(path, key, value, SCHEMA[""][key])
-        else:
-            raise InputError(f"{path}: key '{key}': unknown")
-    cfg = RunConfig(path, os.path.dirname(os.path.abspath(path)), sections)
-    if cfg[""]["controller"] not in control.MODES:
-        raise InputError(f"{path}: key 'controller': {cfg['']['controller']!r} is not one of {', '.join(control.MODES)}")
-    return cfg
+    sections = {"": {k: v for k, v in doc.items() if not isinstance(v, dict)},
+                **{k: v for k, v in doc.items() if isinstance(v, dict)}}
+    return RunConfig(path, os.path.dirname(os.path.abspath(path)), check_sections(sections, path))
 
 
 def controller_params(cfg: RunConfig, word: str, model, preview: bool = False) -> control.ControllerParams:

@@ -13,7 +13,8 @@ import time
 import numpy as np
 
 from .metrics import Metrics, metrics
-from .model import CORES, FittedModel
+from .model_schema import KINDS as KIND_SCHEMAS
+from .model import FittedModel
 from .preprocess import Scaling, preprocess
 from .recording import InputError, Recording
 
@@ -53,7 +54,7 @@ def fit_model(
     start = time.perf_counter()
     pre = preprocess(t_s, x, y)
     xs, ys = Scaling.from_data(x), Scaling.from_data(y)
-    module = importlib.import_module(CORES[kind].split(":")[0])
+    module = importlib.import_module(KIND_SCHEMAS[kind].core.split(":")[0])
     core = module.fit_core(xs.to_unit(pre.x), ys.to_unit(pre.y), pre.rate_hz, n)
     inverse = core.inverse() if hasattr(core, "inverse") else None
     fit_s = time.perf_counter() - start

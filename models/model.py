@@ -15,6 +15,8 @@ Model file (JSON, written atomically, floats round-trip exactly)::
     {"format": "valvectl-model", "version": 1, "kind": KIND,
      "input": {"name", "center", "half_range"}, "output": {...},
      "params": {...}, "inverse": {...} (PI kinds), "meta": {...}}
+
+Its schema, one per kind, is in :mod:`models.model_schema`.
 """
 from __future__ import annotations
 
@@ -32,24 +34,14 @@ from .recording import InputError
 FORMAT = "valvectl-model"
 VERSION = 1
 
-#: kind word -> "module:Class" of its core (imported on first use).
-CORES = {
-    "pi": "models.pi:PIModel",
-    "inverse-pi": "models.inverse_pi:InversePI",
-    "pi-asym": "models.pi_asym:AsymmetricPIModel",
-    "inverse-pi-asym": "models.pi_asym:InverseAsymmetricPI",
-    "preisach": "models.preisach:PreisachModel",
-    "preisach-cont": "models.preisach_cont:ContinuousPreisachModel",
-    "bouc-wen": "models.bouc_wen:BoucWenModel",
-}
-
-
 def core_class(kind: str):
-    """The core class for a kind word."""
+    """The core class for a kind word (forward kinds and their inverses, :data:`models.model_schema.KINDS`)."""
+    from .model_schema import KINDS, forward_kinds
+
     try:
-        mod, cls = CORES[kind].split(":")
+        mod, cls = KINDS[kind].core.split(":")
     except KeyError:
-        raise InputError(f"unknown model kind {kind!r} (one of {', '.join(k for k in CORES if not k.startswith('inverse-'))})") from None
+        raise InputError(f"unknown model kind {kind!r} (one of {', '.join(forward_kinds())})") from None
     return getattr(importlib.import_module(mod), cls)
 
 
@@ -119,29 +111,32 @@ class FittedModel:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "<model>") -> "FittedModel":
-        try:
-            if d.get("format") != FORMAT:
-                raise InputError(f"{source}: field 'format': not a valvectl model file")
-            core = core_class(d["kind"]).from_params(d["params"])
-            inverse = None
-            if d.get("inverse"):
-                inverse = core_class(d["inverse"]["kind"]).from_params(d["inverse"]["params"])
-            return cls(
-                kind=d["kind"],
-                core=core,
-                x_scale=Scaling.from_dict(d["input"]),
-                y_scale=Scaling.from_dict(d["output"]),
-                x_name=d["input"].get("name", "duty_pct"),
-                y_name=d["output"].get("name", "flow_lpm"),
-                inverse=inverse,
-                meta=d.get("meta", {}),
-            )
-        except KeyError as exc:
-            raise InputError(f"{source}: field {exc.args[0]!r}: missing") from None
-        except (TypeError, ValueError) as exc:
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(f"{source}: malformed model file ({exc})") from None
+        """A model from a parsed model file, checked against its kind's schema (:mod:`models.model_schema`)."""
+        from .model_schema import KINDS, forward_kinds
+        from .schema import convert
+
+        if not isinstance(d, dict):
+            raise InputError(f"{source}: a model file is a JSON object")
+        if d.get("format") != FORMAT:
+            raise InputError(f"{source}: format: not a valvectl model file (expected {FORMAT!r})")
+        kind = d.get("kind")
+        if not isinstance(kind, str) or kind not in forward_kinds():
+            raise InputError(f"{source}: kind: {kind!r} is not a model kind (one of {', '.join(forward_kinds())})")
+        f = convert(d, KINDS[kind].file, source)
+        core = core_class(kind).from_params(d["params"])
+        inverse = None
+        if getattr(f, "inverse", None) is not None:
+            inverse = core_class(f.inverse.kind).from_params(d["inverse"]["params"])
+        return cls(
+            kind=kind,
+            core=core,
+            x_scale=Scaling(center=f.input.center, half_range=f.input.half_range),
+            y_scale=Scaling(center=f.output.center, half_range=f.output.half_range),
+            x_name=f.input.name or "duty_pct",
+            y_name=f.output.name or "flow_lpm",
+            inverse=inverse,
+            meta=f.meta,
+        )
 
 
 def _json_default(o):
@@ -172,15 +167,8 @@ def save_model(model: FittedModel, path: str | os.PathLike) -> None:
 
 
 def load_model(path: str | os.PathLike) -> FittedModel:
-    """Read a model file; bad files raise :class:`InputError` naming the file."""
+    """Read a model file; bad files raise :class:`InputError` naming the file and the field."""
+    from .schema import read_json
+
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as fh:
-            d = json.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{path}:1: a model file is a JSON object")
-    return FittedModel.from_dict(d, source=path)
+    return FittedModel.from_dict(read_json(path), source=path)

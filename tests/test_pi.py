@@ -98,7 +98,7 @@ def test_model_file_round_trips_exactly(tmp_path):
 
 @pytest.mark.parametrize("content,words", [("{", "not valid JSON"), ("[]", "JSON object"),
                                            ('{"format": "other"}', "not a valvectl model"),
-                                           ('{"format": "valvectl-model", "kind": "pi"}', "'params'")])
+                                           ('{"format": "valvectl-model", "kind": "pi"}', "version: missing")])
 def test_bad_model_file_is_one_line(tmp_path, content, words):
     p = tmp_path / "bad.json"
     p.write_text(content)

@@ -31,6 +31,8 @@ import numpy as np
 from models.recording import InputError
 
 RANGES = ("log", "uniform")
+#: Most candidates one block may make (a grid's product or a sample count): beyond it, a sweep is a mistake.
+MAX_CANDIDATES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,8 @@ def _range(v: dict, where: str) -> tuple[str, float, float]:
                                                               for x in lohi)):
         raise InputError(f"{where}: {kind} = [lo, hi] with two numbers, got {lohi!r}")
     lo, hi = float(lohi[0]), float(lohi[1])
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise InputError(f"{where}: {kind} range [{lo:g}, {hi:g}] needs finite numbers")
     if not lo <= hi or (kind == "log" and lo <= 0):
         raise InputError(f"{where}: {kind} range [{lo:g}, {hi:g}] needs lo <= hi" + (" and lo > 0" if kind == "log" else ""))
     return kind, lo, hi
@@ -123,10 +127,15 @@ def expand_block(block: dict, where: str, modes, known: set[str], rng: np.random
                 raise InputError(f"{where}.{name}: empty list")
             axes[name] = [_number_or_text(x, f"{where}.{name}") for x in vals]
         names = list(axes)
+        size = int(np.prod([len(axes[n]) for n in names], dtype=float))
+        if size > MAX_CANDIDATES:
+            raise InputError(f"{where}: the grid has {size:.3g} points, more than {MAX_CANDIDATES}")
         rows = [dict(zip(names, combo)) for combo in itertools.product(*(axes[n] for n in names))]
         return [word] * len(rows), rows
     if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
         raise InputError(f"{where}.sample: \"grid\" or a positive number of random points, got {sample!r}")
+    if sample > MAX_CANDIDATES:
+        raise InputError(f"{where}.sample: at most {MAX_CANDIDATES} random points, got {sample}")
     cols = {}
     for name, v in settings.items():
         w = f"{where}.{name}"

@@ -30,17 +30,36 @@ import copy
 import dataclasses
 import os
 from dataclasses import dataclass
+from typing import Annotated
 
+import msgspec
 import numpy as np
 
 from models.recording import InputError
+from models.schema import NonEmpty, Positive, convert
 from models.tomlfile import read_toml
 
 from . import metrics, space
 
 DEFAULT_SWEEP = "config/sweep.toml"
-TOP = {"run": str, "duration_s": float, "seed": int, "objective": str, "margins_top": int,
-       "margins_flow_lpm": float, "heatmap": list, "chunk_loops": int}
+
+
+class SweepFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The sweep file's schema (framework and how to add a key: :mod:`models.schema`)."""
+
+    run: NonEmpty = "run.toml"
+    duration_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 5.0
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0
+    objective: str | None = None
+    margins_top: Annotated[int, msgspec.Meta(ge=0, le=100_000)] = 20
+    margins_flow_lpm: Positive | None = None
+    heatmap: list[str] = msgspec.field(default_factory=list)
+    chunk_loops: Annotated[int, msgspec.Meta(ge=1, le=1_000_000)] = 512
+    profile: dict = msgspec.field(default_factory=dict)
+    variants: Annotated[list[dict], msgspec.Meta(min_length=1)] = msgspec.field(default_factory=lambda: [{}])
+    candidates: list = msgspec.field(default_factory=list)
+
+
 #: run-config sections whose keys a candidate may set ("model": the feedforward's model file)
 CONTROLLER_SECTIONS = ("limits", "valve", "feedforward", "pid", "ff_pid", "kf")
 #: which controller words a setting matters to (for the table: blank where it does not)
@@ -80,14 +99,17 @@ class SweepSpec:
 
 
 def known_settings(run_cfg) -> dict:
-    """``section.key`` -> type of every setting a candidate may change (from the run config's schema)."""
-    from controller.config import SCHEMA
+    """``section.key`` -> type (float or str) of every setting a candidate may change (from the run schema)."""
+    import typing
+
+    from controller.config import SECTIONS
 
     out = {"model": str}
-    for s in CONTROLLER_SECTIONS:
-        for k, v in SCHEMA[s].items():
-            if isinstance(v, (float, str)) and not isinstance(v, bool):
-                out[f"{s}.{k}"] = type(v)
+    for sec in CONTROLLER_SECTIONS:
+        for f in msgspec.structs.fields(SECTIONS[sec]):
+            t = typing.get_args(f.type)[0] if typing.get_origin(f.type) is typing.Annotated else f.type
+            if t in (float, str):
+                out[f"{sec}.{f.name}"] = t
     return out
 
 
@@ -111,40 +133,19 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     path = os.fspath(path)
     doc = read_toml(path)
     folder = os.path.dirname(os.path.abspath(path))
-    top = {}
-    for key, value in doc.items():
-        if key in ("profile", "variants", "candidates"):
-            continue
-        if key not in TOP:
-            raise InputError(f"{path}: key '{key}': unknown (one of {', '.join([*TOP, 'profile', 'variants', 'candidates'])})")
-        want = TOP[key]
-        ok = (isinstance(value, (int, float)) and not isinstance(value, bool)) if want is float else \
-            (isinstance(value, want) and not isinstance(value, bool))
-        if not ok:
-            raise InputError(f"{path}: key '{key}': expected {want.__name__}, got {value!r}")
-        top[key] = float(value) if want is float else value
-
-    run_rel = top.get("run", "run.toml")
-    run = load_run_config(run_rel if os.path.isabs(run_rel) else os.path.join(folder, run_rel))
-    run = _with_profile(run, doc.get("profile", {}), path)
-    duration = top.get("duration_s", 5.0)
-    if not duration > 0:
-        raise InputError(f"{path}: key 'duration_s': must be positive, got {duration:g}")
-    for k in ("margins_top", "chunk_loops"):
-        if top.get(k, 1) < (0 if k == "margins_top" else 1):
-            raise InputError(f"{path}: key '{k}': must be {'>= 0' if k == 'margins_top' else 'positive'}, got {top[k]}")
-
-    variants = doc.get("variants", [{}])
-    if not isinstance(variants, list) or not all(isinstance(v, dict) for v in variants) or not variants:
-        raise InputError(f"{path}: key 'variants': expected [[variants]] tables")
+    f = convert(doc, SweepFile, path)
+    run = load_run_config(f.run if os.path.isabs(f.run) else os.path.join(folder, f.run))
+    run = _with_profile(run, f.profile, path)
+    duration = f.duration_s
+    variants = f.variants
     names = plant_field_names()
     for i, v in enumerate(variants):
         for k in v:
             if k not in names:
-                raise InputError(f"{path}: key 'variants[{i}].{k}': unknown plant setting (one of {', '.join(sorted(names))})")
+                raise InputError(f"{path}: variants[{i}].{k}: unknown plant setting (one of {', '.join(sorted(names))})")
 
     known = known_settings(run)
-    seed = top.get("seed", 0)
+    seed = f.seed
     cands = space.candidates(doc.get("candidates"), path, MODES, set(known), seed)
     for name, col in cands.settings.items():
         want = known[name]
@@ -153,26 +154,45 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     cands = _with_default(run, cands)
 
     figure_names = list(metrics.NAMES) + [f"worst_{n}" for n in metrics.NAMES]
-    objective = top.get("objective", "worst_iae" if len(variants) > 1 else "iae")
+    objective = f.objective or ("worst_iae" if len(variants) > 1 else "iae")
     if objective not in figure_names or (objective.startswith("worst_") and len(variants) < 2):
         raise InputError(f"{path}: key 'objective': {objective!r} is not a column of this sweep "
                          f"(one of {', '.join(figure_names[:len(metrics.NAMES) * (2 if len(variants) > 1 else 1)])})")
-    heat = tuple(top.get("heatmap", ()))
+    heat = tuple(f.heatmap)
     for h in heat:
         if h not in cands.settings:
             raise InputError(f"{path}: key 'heatmap': {h!r} is not a swept setting")
     if heat and len(heat) != 2:
         raise InputError(f"{path}: key 'heatmap': two settings, got {len(heat)}")
-    return SweepSpec(path, run, duration, seed, objective, top.get("margins_top", 20), top.get("margins_flow_lpm"),
-                     heat, top.get("chunk_loops", 512), variants, cands)
+    _check_candidates(run, cands, path)
+    return SweepSpec(path, run, duration, seed, objective, f.margins_top, f.margins_flow_lpm,
+                     heat, f.chunk_loops, variants, cands)
 
 
 def _with_profile(run, changes: dict, path: str):
-    if not isinstance(changes, dict):
-        raise InputError(f"{path}: key 'profile': expected a table")
+    from controller.config import check_sections
+
     sections = copy.deepcopy(run.sections)
     sections["profile"].update(changes)
-    return dataclasses.replace(run, sections=sections)
+    return dataclasses.replace(run, sections=check_sections(sections, f"{path} (profile on {run.path})"))
+
+
+def _check_candidates(run, cands: space.Candidates, path: str) -> None:
+    """Every candidate's run configuration through the run schema; the first bad one named with its settings."""
+    from controller.config import check_sections
+    from models.model import load_model
+
+    if "model" in cands.settings:
+        for m in sorted(set(cands.settings["model"]) - {""}):
+            load_model(run.resolve(m))
+    for i in range(len(cands)):
+        row = cands.row(i)
+        try:
+            check_sections(apply(run, cands.controller[i], {k: v for k, v in row.items() if k != "model"}).sections,
+                           "")
+        except InputError as exc:
+            shown = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items())
+            raise InputError(f"{path}: candidate {i} ({cands.controller[i]}: {shown}): {str(exc).removeprefix(': ')}") from None
 
 
 def _with_default(run, cands: space.Candidates) -> space.Candidates:

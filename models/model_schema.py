@@ -1,0 +1,218 @@
+"""Model files (JSON): one schema per model kind, registered with the kind's core class.
+
+A model file is ``{"format": "valvectl-model", "version": 1, "kind": KIND,
+"input": {"name", "center", "half_range"}, "output": {...}, "params": {...},
+"inverse": {"kind", "params"} (invertible kinds), "meta": {...}}``. The
+envelope is :class:`ModelFile`; ``params`` (and ``inverse.params``) take the
+struct registered for the kind, so a bad file names its field exactly::
+
+    config/valve_model.json: params.w[3]: must be a finite number (got nan)
+
+How to add a model kind
+-----------------------
+Write one struct for the kind's ``params`` (the dict its core's
+``to_params`` returns and ``from_params`` reads), with the constrained types
+of :mod:`models.schema` and its shape rules in ``__post_init__``, and
+register it::
+
+    class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
+        r: list[NonNegative]
+        ...
+
+    register("pi-mod", "models.pi_mod:PIModModel", PIModParams,
+             inverse=("inverse-pi-mod", "models.pi_mod:InversePIMod", InversePIModParams))
+
+That is all: :func:`models.model.core_class` and :func:`models.model.load_model`
+find the kind through :data:`KINDS`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import msgspec
+
+from .schema import Finite, NonNegative, Positive
+
+#: Most operators/relays a model file may hold (the paper's largest, Preisach n = 50, has 1275).
+MAX_ELEMENTS = 100_000
+#: Most Everett mesh points per axis.
+MAX_MESH = 1000
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One model kind: its core class (``"module:Class"``), params schema and file schema."""
+
+    name: str
+    core: str
+    params: type
+    file: type
+    inverse_of: str | None = None
+
+
+#: kind word -> :class:`Kind` (forward kinds and their inverses).
+KINDS: dict[str, Kind] = {}
+
+
+class Scale(msgspec.Struct, forbid_unknown_fields=True):
+    """Affine map to the model's [-1, 1]: ``u = (x - center) / half_range``."""
+
+    center: Finite
+    half_range: Positive
+    name: str | None = None
+
+
+class ModelFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The envelope every model file shares; ``params`` and ``inverse`` are typed per kind."""
+
+    format: Literal["valvectl-model"]
+    version: Literal[1]
+    kind: str
+    input: Scale
+    output: Scale
+    meta: dict = {}
+
+
+def _same_length(struct, names: tuple[str, ...], optional: tuple[str, ...] = ()) -> None:
+    n = len(getattr(struct, names[0]))
+    if not 1 <= n <= MAX_ELEMENTS:
+        raise ValueError(f"{names[0]}: must have 1..{MAX_ELEMENTS} entries (got {n})")
+    for name in names[1:] + tuple(o for o in optional if getattr(struct, o) is not None):
+        if len(getattr(struct, name)) != n:
+            raise ValueError(f"{name}: must have as many entries as {names[0]} ({len(getattr(struct, name))} != {n})")
+
+
+def _ascending(values: list, name: str) -> None:
+    if any(b < a for a, b in zip(values, values[1:])):
+        raise ValueError(f"{name}: must be ascending")
+
+
+class PIParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Eq. (4): thresholds ``r`` (ascending, >= 0), weights ``w``, offset, optional memory ``y0``."""
+
+    r: list[NonNegative]
+    w: list[Finite]
+    offset: Finite = 0.0
+    y0: list[Finite] | None = None
+
+    def __post_init__(self):
+        _same_length(self, ("r", "w"), ("y0",))
+        _ascending(self.r, "r")
+
+
+class InversePIParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Eq. (7): inverse thresholds and weights (``w[0] = 1/w_1`` of the forward, nonzero)."""
+
+    r: list[NonNegative]
+    w: list[Finite]
+    offset: Finite = 0.0
+    x0: list[Finite] | None = None
+
+    def __post_init__(self):
+        _same_length(self, ("r", "w"), ("x0",))
+        _ascending(self.r, "r")
+        if self.w[0] == 0.0:
+            raise ValueError("w[0]: must be nonzero (it is 1/w_1 of the forward model)")
+
+
+class PIAsymParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Asymmetric PI: thresholds, weights, descending widening ``a`` >= 0, its exponent ``p`` > 0."""
+
+    r: list[NonNegative]
+    w: list[Finite]
+    a: NonNegative = 0.0
+    p: Positive = 1.0
+    offset: Finite = 0.0
+
+    def __post_init__(self):
+        _same_length(self, ("r", "w"))
+        _ascending(self.r, "r")
+
+
+class InversePIAsymParams(msgspec.Struct, forbid_unknown_fields=True):
+    """The inverse of an asymmetric PI is solved through its forward model."""
+
+    forward: PIAsymParams
+
+
+class PreisachParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Relays ``(alpha_i, beta_i)`` with ``alpha >= beta`` and their weights ``mu``."""
+
+    alpha: list[Finite]
+    beta: list[Finite]
+    mu: list[Finite]
+    offset: Finite = 0.0
+
+    def __post_init__(self):
+        _same_length(self, ("alpha", "beta", "mu"))
+        if any(a < b for a, b in zip(self.alpha, self.beta)):
+            raise ValueError("alpha: every relay needs alpha >= beta")
+
+
+class PreisachContParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Everett function sampled on an (n+1) x (n+1) mesh, n >= 1."""
+
+    everett: list[list[Finite]]
+    offset: Finite = 0.0
+
+    def __post_init__(self):
+        n = len(self.everett)
+        if not 2 <= n <= MAX_MESH:
+            raise ValueError(f"everett: must have 2..{MAX_MESH} rows (got {n})")
+        bad = next((i for i, row in enumerate(self.everett) if len(row) != n), None)
+        if bad is not None:
+            raise ValueError(f"everett[{bad}]: has {len(self.everett[bad])} entries; the mesh is square, {n} x {n}")
+
+
+class BoucWenParams(msgspec.Struct, forbid_unknown_fields=True):
+    """``dh/dx = 1 - (beta sign(dx h) + gamma)|h|^n``, ``y = a x + b h + c``.
+
+    ``beta + gamma > 0`` and ``beta - gamma > 0`` keep ``h`` bounded on both
+    branches (the fit searches exactly that region); ``0 < n <= 20``.
+    """
+
+    beta: Finite
+    gamma: Finite
+    n: Positive
+    a: Finite
+    b: Finite
+    c: Finite
+
+    def __post_init__(self):
+        if not (self.beta + self.gamma > 0 and self.beta - self.gamma > 0):
+            raise ValueError(f"beta: must exceed |gamma| (got beta {self.beta:g}, gamma {self.gamma:g})")
+        if self.n > 20:
+            raise ValueError(f"n: must be <= 20 (got {self.n:g})")
+
+
+def register(name: str, core: str, params: type, inverse: tuple[str, str, type] | None = None) -> None:
+    """Register a model kind: its word, its core ``"module:Class"``, its params struct, and its inverse.
+
+    ``inverse``: ``(inverse word, inverse core, inverse params struct)`` for
+    invertible kinds, whose model files carry ``"inverse": {"kind", "params"}``.
+    """
+    inv_field = []
+    if inverse is not None:
+        inv_name, inv_core, inv_params = inverse
+        inv_ref = msgspec.defstruct(f"{inv_name}-ref", [("kind", Literal[inv_name]), ("params", inv_params)],
+                                    forbid_unknown_fields=True)
+        inv_field = [("inverse", inv_ref | None, None)]
+        KINDS[inv_name] = Kind(inv_name, inv_core, inv_params, inv_ref, inverse_of=name)
+    file = msgspec.defstruct(f"{name}-file", [("params", params), *inv_field], bases=(ModelFile,), kw_only=True,
+                             forbid_unknown_fields=True)
+    KINDS[name] = Kind(name, core, params, file)
+
+
+register("pi", "models.pi:PIModel", PIParams,
+         inverse=("inverse-pi", "models.inverse_pi:InversePI", InversePIParams))
+register("pi-asym", "models.pi_asym:AsymmetricPIModel", PIAsymParams,
+         inverse=("inverse-pi-asym", "models.pi_asym:InverseAsymmetricPI", InversePIAsymParams))
+register("preisach", "models.preisach:PreisachModel", PreisachParams)
+register("preisach-cont", "models.preisach_cont:ContinuousPreisachModel", PreisachContParams)
+register("bouc-wen", "models.bouc_wen:BoucWenModel", BoucWenParams)
+
+
+def forward_kinds() -> list[str]:
+    """Kind words a model file may name (inverses travel inside their forward's file)."""
+    return [k for k, v in KINDS.items() if not v.inverse_of]
