@@ -21,16 +21,18 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import Annotated, Literal, NamedTuple, Sequence
 
+import msgspec
 import numpy as np
 
 from models.model import FittedModel, load_model
 from models.recording import InputError
+from models.schema import Finite, NonNegative, Positive, convert
 from models.tomlfile import read_toml
 
 from . import kernel as K
-from .effects import EFFECTS, check_effect
+from .effects import EFFECTS
 
 DEFAULT_PLANT = "config/plant.toml"
 
@@ -104,19 +106,10 @@ class PlantParams:
     def __post_init__(self):
         if self.model.kind != "pi":
             raise InputError(f"plant model: kind {self.model.kind!r}, the plant needs a 'pi' model")
-        if self.dynamics_order not in (1, 2):
-            raise InputError(f"plant: dynamics_order must be 1 or 2, got {self.dynamics_order}")
-        for name in ("coil_tau_s", "wander_tau_s", "creep_tau_s", "droop_ref_lpm", "atmosphere_bar"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise InputError(f"plant: {name} must be positive, got {getattr(self, name)}")
-        for name in ("noise_lpm", "scale_factor", "droop_bar", "coil_alpha_per_k"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise InputError(f"plant: {name} must be zero or positive, got {getattr(self, name)}")
-        lo, hi = self.range_lpm
-        if not lo < hi:
-            raise InputError(f"plant: range_lpm must be [low, high] with low < high, got {list(self.range_lpm)}")
+        checked = check_settings({f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "model"},
+                                 "plant")
         for name in EFFECTS:
-            object.__setattr__(self, name, check_effect(name, getattr(self, name), "plant"))
+            object.__setattr__(self, name, getattr(checked, name))
 
     @property
     def effects(self) -> dict[str, float]:
@@ -128,6 +121,37 @@ class PlantParams:
         return dataclasses.replace(self, **changes)
 
 
+class _Settings(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The plant file's settings, flat (every field of :class:`PlantParams` but the model); effects added below."""
+
+    noise_lpm: NonNegative = 0.5
+    scale_factor: NonNegative = 120.0
+    range_lpm: tuple[Finite, Finite] = (-250.0, 250.0)
+    supply_bar: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 3.0
+    model_supply_bar: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 3.0
+    atmosphere_bar: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.01325
+    droop_bar: NonNegative = 0.15
+    droop_ref_lpm: Positive = 200.0
+    wander_tau_s: Positive = 30.0
+    ambient_c: Annotated[float, msgspec.Meta(ge=-273.15, le=1000.0)] = 25.0
+    coil_tau_s: Positive = 180.0
+    coil_alpha_per_k: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.00393
+    dynamics_order: Literal[1, 2] = 1
+    creep_tau_s: Positive = 20.0
+
+    def __post_init__(self):
+        lo, hi = self.range_lpm
+        if not lo < hi:
+            raise ValueError(f"range_lpm: must be [low, high] with low < high (got [{lo:g}, {hi:g}])")
+
+
+#: The plant's settings schema: :class:`_Settings` plus one field per effect word, within its limits.
+PlantSettings = msgspec.defstruct(
+    "PlantSettings",
+    [(e.name, Annotated[float, msgspec.Meta(ge=e.limits[0], le=e.limits[1])], 0.0) for e in EFFECTS.values()],
+    bases=(_Settings,), kw_only=True, forbid_unknown_fields=True)
+
+#: plant file section -> its keys (fields of PlantSettings)
 _SECTIONS = {
     "sensor": {"noise_lpm", "scale_factor", "range_lpm"},
     "supply": {"supply_bar", "model_supply_bar", "atmosphere_bar", "droop_bar", "droop_ref_lpm", "wander_tau_s"},
@@ -135,6 +159,12 @@ _SECTIONS = {
     "valve": {"dynamics_order", "creep_tau_s"},
     "effects": set(EFFECTS),
 }
+_WHERE = {name: f"{sec}.{name}" for sec, names in _SECTIONS.items() for name in names}
+
+
+def check_settings(fields: dict, source: str):
+    """Flat plant settings (:class:`PlantSettings` fields) checked; messages name the file's ``section.key``."""
+    return convert(fields, PlantSettings, source, field_names=_WHERE)
 
 
 def load_plant(
@@ -146,6 +176,7 @@ def load_plant(
 
     The file's ``model`` key names the model file, relative to the TOML's folder.
     The default path is tried in the working directory, then in this checkout.
+    Every setting, from the file or given, goes through :class:`PlantSettings`.
     """
     path = os.fspath(path)
     if path == DEFAULT_PLANT and not os.path.exists(path):
@@ -156,24 +187,19 @@ def load_plant(
         if key == "model":
             continue
         if key not in _SECTIONS or not isinstance(value, dict):
-            raise InputError(f"{path}: key '{key}': unknown (expected model, {', '.join(_SECTIONS)})")
+            raise InputError(f"{path}: {key}: unknown key (expected model, {', '.join(_SECTIONS)})")
         for name, v in value.items():
             if name not in _SECTIONS[key]:
-                raise InputError(f"{path}: key '{key}.{name}': unknown")
-            if key == "effects":
-                v = check_effect(name, v, f"{path}: [effects]")
-            fields[name] = tuple(v) if isinstance(v, list) else v
-    if "model" not in doc:
-        raise InputError(f"{path}: key 'model': missing (path of the forward model file)")
+                raise InputError(f"{path}: {key}.{name}: unknown key")
+            fields[name] = v
+    if not isinstance(doc.get("model"), str) or not doc["model"]:
+        raise InputError(f"{path}: model: missing (path of the forward model file)")
     model_path = os.path.join(os.path.dirname(os.path.abspath(path)), doc["model"])
-    for name, v in (effects or {}).items():
-        fields[name] = check_effect(name, v, "effect")
+    fields.update(effects or {})
     fields.update(overrides)
+    settings = check_settings(fields, path)
     model = load_model(model_path)
-    try:
-        return PlantParams(model=model, **fields)
-    except (TypeError, ValueError) as exc:  # InputError included: name the file
-        raise InputError(f"{path}: {exc}") from None
+    return PlantParams(model=model, **{f: getattr(settings, f) for f in settings.__struct_fields__})
 
 
 class PlantState(NamedTuple):

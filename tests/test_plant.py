@@ -293,7 +293,7 @@ def test_effect_free_recording_is_fit_by_the_pi_to_the_noise_level(default):
 def test_load_plant_rejects_bad_input(tmp_path):
     with pytest.raises(InputError, match="unknown"):
         load_plant(effects={"warp_drive": 1.0})
-    with pytest.raises(InputError, match="outside"):
+    with pytest.raises(InputError, match="effects.dead_zone: must be <= 100"):
         load_plant(effects={"dead_zone": 150.0})
     bad = tmp_path / "plant.toml"
     bad.write_text('model = "valve_model.json"\n[sensor]\nnoise = 1\n')

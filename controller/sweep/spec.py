@@ -118,13 +118,6 @@ def relevant(name: str, word: str) -> bool:
     return word in RELEVANT[name.split(".")[0]]
 
 
-def plant_field_names() -> set[str]:
-    from plant_sim.effects import EFFECTS
-    from plant_sim.plant import PlantParams
-
-    return {f.name for f in dataclasses.fields(PlantParams) if f.name != "model"} | set(EFFECTS)
-
-
 def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     """Read and check a sweep file; bad input raises InputError naming the file and the key."""
     from controller.config import load_run_config
@@ -138,11 +131,10 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     run = _with_profile(run, f.profile, path)
     duration = f.duration_s
     variants = f.variants
-    names = plant_field_names()
+    from plant_sim.plant import check_settings
+
     for i, v in enumerate(variants):
-        for k in v:
-            if k not in names:
-                raise InputError(f"{path}: variants[{i}].{k}: unknown plant setting (one of {', '.join(sorted(names))})")
+        check_settings(v, f"{path}: variants[{i}]")
 
     known = known_settings(run)
     seed = f.seed
