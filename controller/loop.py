@@ -282,7 +282,7 @@ class Loop:
                 # 2. inputs
                 v, bad = transport.poll_measurement(accept_meas)
                 if bad:
-                    faults.add("bad_measurement", t, bad)
+                    faults.add_rejects(bad, t, "bad_measurement")
                 fresh = v is not None
                 if fresh:
                     meas = v

@@ -38,6 +38,14 @@ class Faults:
             self._count[kind] = 0
         self._count[kind] += n
 
+    def add_rejects(self, rejects, t_s: float, kind: str) -> None:
+        """Count a transport's rejects: ``n`` of ``kind``, or a mapping ``{kind: n}`` of several kinds."""
+        if isinstance(rejects, dict):
+            for k, n in rejects.items():
+                self.add(k, t_s, n)
+        else:
+            self.add(kind, t_s, rejects)
+
     def counts(self) -> dict[str, int]:
         return dict(self._count)
 

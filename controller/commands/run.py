@@ -47,7 +47,7 @@ def run(args) -> int:
         from controller.transport.zenoh import EmbeddedValve, ZenohTransport, open_session
 
         session = open_session(cfg, args.listen, args.connect, role="controller")
-        zt = ZenohTransport(session, cfg["zenoh"]["id"])
+        zt = ZenohTransport(session, cfg["zenoh"]["id"], settings.stale_ms * 1e-3)
     if plant_kind == "sim":
         from controller.transport.sim import SimTransport
         from plant_sim.plant import Plant, load_plant

@@ -19,10 +19,17 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 import zenoh
 
-RING = 256  # samples kept per subscriber between two loop steps (a flood beyond is dropped unseen)
+from .guard import SourceGuard
+from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_number
+
+#: Samples Zenoh keeps per subscribed key between two polls, and the most one poll takes.
+RING = 16
+#: Time one poll of one key may spend on its samples, s (a 1 kHz step has 1000 us; the law needs ~100).
+DRAIN_BUDGET_S = 150e-6
 
 
 def session_config(cfg, listen: list[str] | None, connect: list[str] | None, role: str) -> zenoh.Config:
@@ -64,36 +71,78 @@ def open_session(cfg, listen, connect, role: str):
         raise InputError(f"zenoh: cannot open a session ({exc})") from None
 
 
-def payload(t_s: float, seq: int, value, **extra) -> bytes:
-    return json.dumps({"t": t_s, "seq": seq, "value": value, **extra}).encode()
+def raw_payload(sample, max_bytes: int = MAX_PAYLOAD_BYTES) -> bytes:
+    """The payload's bytes, refused (:class:`PayloadError`) before the copy out of Zenoh when oversized."""
+    zb = sample.payload
+    n = len(zb)
+    if n > max_bytes:
+        raise PayloadError(f"payload of {n} bytes (limit {max_bytes})")
+    return zb.to_bytes()
 
 
-def parse(sample) -> tuple[float | None, int | None]:
-    """``(value, seq)`` of a payload; value None if the payload is malformed (seq None if absent)."""
-    try:
-        d = json.loads(sample.payload.to_bytes())
-        v = d["value"]
-    except (ValueError, TypeError, KeyError, UnicodeDecodeError):
-        return None, None
-    seq = d.get("seq")
-    seq = seq if isinstance(seq, int) else None
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None, seq
-    return float(v), seq
+class Inbox:
+    """One subscribed key: Zenoh keeps its newest ``ring`` samples, the loop drains them with a bound.
 
+    Zenoh's thread drops whatever a flood pushes past the ring (a
+    ``RingChannel``, never blocking Zenoh and never growing). :meth:`poll`
+    takes at most ``ring`` samples and spends at most ``budget_s`` (checked
+    after each sample), so a flood of any size or rate costs a step a fixed
+    budget; what it leaves waits for the next step, where the ring has kept
+    only the newest. Each sample goes through the payload parser (size
+    before the copy, then depth, numbers, shape) and, if given, a
+    :class:`~controller.transport.guard.SourceGuard`.
 
-def drain(sub, accept) -> tuple[float | None, int, int | None]:
-    """Newest accepted value among the queued samples, how many were rejected, and its seq."""
-    latest, bad, latest_seq = None, 0, None
-    while True:
-        s = sub.try_recv()
-        if s is None:
-            return latest, bad, latest_seq
-        v, seq = parse(s)
-        if v is not None and accept(v):
-            latest, latest_seq = v, seq
-        else:
-            bad += 1
+    Parameters
+    ----------
+    session : zenoh.Session
+    key : str
+    parse : callable
+        ``parse(bytes) -> Message`` or :class:`PayloadError` (:func:`payload.parse_number`, ``parse_word``).
+    guard : SourceGuard, optional
+    ring : int
+        Samples kept by Zenoh and drained per step at most.
+    budget_s : float
+        Time one poll may spend, s.
+    max_bytes : int
+        Largest payload parsed, bytes.
+    """
+
+    def __init__(self, session, key: str, parse=parse_number, guard: SourceGuard | None = None, ring: int = RING,
+                 budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES):
+        self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
+        self.parse, self.guard, self.ring, self.budget_s, self.max_bytes = parse, guard, ring, budget_s, max_bytes
+
+    def poll(self, accept=None) -> tuple[Message | None, int, int]:
+        """``(newest accepted message or None, bad, spoofed)`` of the samples received since the last poll.
+
+        Bad: not a DESIGN.md payload, or a value ``accept`` rejects; spoofed:
+        well formed but refused by the guard. Never raises for a payload.
+        """
+        latest, bad, spoofed = None, 0, 0
+        pc = time.perf_counter
+        end = pc() + self.budget_s
+        try_recv, parse, guard = self.sub.try_recv, self.parse, self.guard
+        for _ in range(self.ring):
+            s = try_recv()
+            if s is None:
+                break
+            try:
+                m = parse(raw_payload(s, self.max_bytes))
+            except PayloadError:
+                bad += 1
+            else:
+                if accept is not None and not accept(m.value):
+                    bad += 1
+                elif guard is not None and not guard.believe(m.src, m.seq):
+                    spoofed += 1
+                else:
+                    latest = m
+            if pc() > end:
+                break
+        return latest, bad, spoofed
+
+    def undeclare(self) -> None:
+        self.sub.undeclare()
 
 
 class _Publisher:
@@ -102,7 +151,7 @@ class _Publisher:
         self.seq = 0
 
     def put(self, t_s: float, value, **extra) -> None:
-        self.pub.put(payload(t_s, self.seq, value, **extra))
+        self.pub.put(encode(t_s, self.seq, value, **extra))
         self.seq += 1
 
     def undeclare(self) -> None:
@@ -115,21 +164,26 @@ class ZenohReference:
     can_go_stale = True
     preview_s = 0.0
 
-    def __init__(self, sub):
-        self.sub = sub
+    def __init__(self, inbox: Inbox):
+        self.inbox = inbox
 
     def poll(self, t_s: float, accept) -> tuple[float | None, int]:
-        return drain(self.sub, accept)[:2]
+        m, bad, _ = self.inbox.poll(accept)
+        return (None if m is None else m.value), bad
 
 
 class ZenohTransport:
-    """The controller's side: measurements and references in, commands, error and status out."""
+    """The controller's side: measurements and references in, commands, error and status out.
 
-    def __init__(self, session, valve_id: str = "insp"):
+    Measurements pass a :class:`SourceGuard` released after ``stale_s`` of
+    silence: a second publisher of ``meas/flow`` is ``spoofed_measurement``.
+    """
+
+    def __init__(self, session, valve_id: str = "insp", stale_s: float = 0.05):
         k = f"vent/valve/{valve_id}"
         self.session = session
-        self.sub_meas = session.declare_subscriber(f"{k}/meas/flow", zenoh.handlers.RingChannel(RING))
-        self.sub_ref = session.declare_subscriber(f"{k}/ref/flow", zenoh.handlers.RingChannel(RING))
+        self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s))
+        self.ref_in = Inbox(session, f"{k}/ref/flow")
         rt = {"priority": zenoh.Priority.REAL_TIME, "express": True, "congestion_control": zenoh.CongestionControl.DROP}
         self.cmd = _Publisher(session, f"{k}/cmd/duty", **rt)
         self.err = _Publisher(session, f"{k}/ctrl/error", express=True, congestion_control=zenoh.CongestionControl.DROP)
@@ -138,13 +192,16 @@ class ZenohTransport:
         self.meas_seq: int | None = None
 
     def reference(self) -> ZenohReference:
-        return ZenohReference(self.sub_ref)
+        return ZenohReference(self.ref_in)
 
-    def poll_measurement(self, accept) -> tuple[float | None, int]:
-        v, bad, seq = drain(self.sub_meas, accept)
-        if v is not None:
-            self.meas_seq = seq
-        return v, bad
+    def poll_measurement(self, accept) -> tuple[float | None, dict]:
+        """Newest believed measurement (or None) and the rejected ones by fault kind."""
+        m, bad, spoofed = self.meas_in.poll(accept)
+        rejects = {"bad_measurement": bad, "spoofed_measurement": spoofed} if bad or spoofed else 0
+        if m is None:
+            return None, rejects
+        self.meas_seq = m.seq
+        return m.value, rejects
 
     def command(self, duty_pct: float, t_s: float) -> None:
         # meas_seq: the newest measurement this command was computed from (round-trip timing).
@@ -160,8 +217,8 @@ class ZenohTransport:
         self.token.undeclare()
         for p in (self.cmd, self.err, self.status):
             p.undeclare()
-        for s in (self.sub_meas, self.sub_ref):
-            s.undeclare()
+        for i in (self.meas_in, self.ref_in):
+            i.undeclare()
 
 
 class EmbeddedValve:
@@ -188,22 +245,28 @@ class EmbeddedValve:
 
 
 class ValveNodeTransport:
-    """The valve's side (``valvectl valve-node``): commands in, measured flow out, ``alive/valve``."""
+    """The valve's side (``valvectl valve-node``): commands in, measured flow out, ``alive/valve``.
+
+    Its measurements carry ``src``, the session's Zenoh id, so that the
+    controller's guard tells this node from any other publisher.
+    """
 
     def __init__(self, session, valve_id: str = "insp"):
         k = f"vent/valve/{valve_id}"
-        self.sub_cmd = session.declare_subscriber(f"{k}/cmd/duty", zenoh.handlers.RingChannel(RING))
+        self.cmd_in = Inbox(session, f"{k}/cmd/duty")
         self.meas = _Publisher(session, f"{k}/meas/flow", priority=zenoh.Priority.REAL_TIME, express=True,
                                congestion_control=zenoh.CongestionControl.DROP)
+        self.src = str(session.zid())
         self.token = session.liveliness().declare_token(f"{k}/alive/valve")
 
     def poll_command(self, accept) -> tuple[float | None, int]:
-        return drain(self.sub_cmd, accept)[:2]
+        m, bad, _ = self.cmd_in.poll(accept)
+        return (None if m is None else m.value), bad
 
     def publish_flow(self, t_s: float, flow_lpm: float) -> None:
-        self.meas.put(t_s, flow_lpm)
+        self.meas.put(t_s, flow_lpm, src=self.src)
 
     def close(self) -> None:
         self.token.undeclare()
         self.meas.undeclare()
-        self.sub_cmd.undeclare()
+        self.cmd_in.undeclare()
