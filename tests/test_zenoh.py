@@ -7,11 +7,7 @@ scenario waits for the controller to be running rather than sleeping fixed times
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -19,47 +15,7 @@ import pytest
 
 zenoh = pytest.importorskip("zenoh")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-START_TIMEOUT_S = 60.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def valvectl(*args, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "controller.cli", *args], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
-
-
-def wait_for(pred, what: str, procs=()) -> None:
-    t0 = time.monotonic()
-    while not pred():
-        for p in procs:
-            if p.poll() is not None:
-                raise AssertionError(f"{what}: a process ended early: {p.communicate()}")
-        if time.monotonic() - t0 > START_TIMEOUT_S:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
-
-
-def rows(path) -> list[list[str]]:
-    try:
-        with open(path) as fh:
-            return [line.rstrip("\n").split(",") for line in fh.readlines()[1:] if line.endswith("\n")]
-    except FileNotFoundError:
-        return []
-
-
-def client_session(ep: str):
-    c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("connect/endpoints", json.dumps([ep]))
-    c.insert_json5("connect/timeout_ms", "-1")
-    return zenoh.open(c)
+from tests.zenoh_helpers import client_session, free_port, rows, valvectl, wait_for  # noqa: E402
 
 
 def test_two_processes_flood_and_killed_valve(tmp_path):
