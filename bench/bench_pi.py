@@ -17,6 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from models import play  # noqa: E402
+from tests import oracles  # noqa: E402
 from models.fitting import evaluate, fit_recording  # noqa: E402
 from models.pi import PIModel, thresholds  # noqa: E402
 from models.preprocess import Scaling, preprocess  # noqa: E402
@@ -42,7 +43,7 @@ def main() -> None:
     print(f"{'samples':>9} {'plain numpy loop':>18} {'numba response':>16} {'numba weighted':>16} {'ratio resp':>11} {'ratio wtd':>10}")
     for n in (100_000, 1_000_000):
         x = np.clip(np.cumsum(rng.normal(0, 0.01, n)), -1, 1)
-        t_plain = best_of(lambda: play.play_response_numpy(r, x, s0), repeat=1)
+        t_plain = best_of(lambda: oracles.play_response_numpy(r, x, s0), repeat=1)
         t_resp = best_of(lambda: play.play_response(r, x, s0))
         t_wtd = best_of(lambda: play.play_weighted(r, w, x, s0))
         print(f"{n:>9} {n / t_plain:>14.3g} S/s {n / t_resp:>12.3g} S/s {n / t_wtd:>12.3g} S/s"
@@ -60,7 +61,7 @@ def main() -> None:
         xu, yu = xs.to_unit(pre.x), ys.to_unit(pre.y)
         rr = thresholds(50, float(np.max(np.abs(xu))))[1:]
         # same start as valvectl's fit (at rest at the first input), so only the model differs
-        Y, _ = play.play_response_numpy(rr, xu, play.init(rr, xu[0], np.nan))
+        Y, _ = oracles.play_response_numpy(rr, xu, play.init(rr, xu[0], np.nan))
         ww, *_ = np.linalg.lstsq(Y, yu, rcond=None)
         return PIModel(r=rr, w=ww), xs, ys
 

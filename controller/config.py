@@ -68,6 +68,7 @@ class Valve(_Section):
 class Feedforward(_Section):
     lead_lag_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.005
     preview: bool = True
+    ready_margin_pct: Percent = 2.0       # no flow asked: this far below the present cracking duty
 
 
 class PID(_Section):
@@ -235,7 +236,10 @@ def controller_params(cfg: RunConfig, word: str, model, preview: bool = False) -
     valve = cfg["valve"]
     kw: dict = {}
     if word.startswith("ff"):
-        kw["inverse"], kw["forward"] = ffw.inverse_bank(model), ffw.forward_bank(model)
+        try:
+            kw["forward"] = ffw.bank(model, 1, cfg["feedforward"]["ready_margin_pct"])
+        except ValueError as exc:
+            raise InputError(f"{cfg.path}: key 'model': {exc}") from None
         if valve["tau_s"] > 0:
             kw["lead"] = ffw.LeadParams.make(1, valve["tau_s"], cfg["feedforward"]["lead_lag_s"])
     if word in ("pid", "ff+pid"):

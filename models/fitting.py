@@ -18,7 +18,7 @@ from .model import FittedModel
 from .preprocess import Scaling, preprocess
 from .recording import InputError, Recording
 
-KINDS = ("pi", "pi-asym", "preisach", "preisach-cont", "bouc-wen")
+KINDS = ("pi", "pi-asym", "pi-mod", "preisach", "preisach-cont", "bouc-wen")
 
 
 def fit_model(

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
+from numba import njit
 
 from . import play
 from .pi import PIModel, fit_pi
@@ -99,13 +100,44 @@ class InversePI:
         return cls(r=p["r"], w=p["w"], offset=p["offset"], x0=p.get("x0"))
 
 
+@njit(cache=True, inline="always")
+def eq7_state(w, y_state, out):
+    """Eq. (7), last line, into ``out``: ``x_i' = sum_{j<i} w_j y_i + sum_{j>=i} w_j y_j``.
+
+    The inverse operators' memory that matches forward operator outputs ``y_state``.
+    """
+    n = w.shape[0]
+    tail = 0.0
+    for i in range(n - 1, -1, -1):
+        tail += w[i] * y_state[i]
+        out[i] = tail
+    head = 0.0
+    for i in range(n):
+        out[i] += head * y_state[i]
+        head += w[i]
+
+
+@njit(cache=True)
+def _eq7_state(w, y_state):
+    out = np.empty(w.shape[0])
+    eq7_state(w, y_state, out)
+    return out
+
+
+@njit(cache=True, inline="always")
+def solve(r, w, r_inv, w_inv, fwd_state, work, p):
+    """The input that takes forward operators in ``fwd_state`` to weighted output ``p`` (Eq. 5-7).
+
+    ``work`` receives the inverse operators' memory (Eq. 7 from ``fwd_state``), stepped with ``p``.
+    Forward memory is not changed.
+    """
+    eq7_state(w, fwd_state, work)
+    return play.bank_step(r_inv, w_inv, 1.0, work, p)
+
+
 def _initial_state(w: np.ndarray, y_state: np.ndarray) -> np.ndarray:
-    """Eq. (7), last line: ``x_i'(0) = sum_{j<i} w_j y_i(0) + sum_{j>=i} w_j y_j(0)``."""
-    w = np.asarray(w, dtype=np.float64)
-    y_state = np.asarray(y_state, dtype=np.float64)
-    head = np.concatenate([[0.0], np.cumsum(w)[:-1]])  # sum_{j<i} w_j
-    tail = np.cumsum((w * y_state)[::-1])[::-1]  # sum_{j>=i} w_j y_j(0)
-    return head * y_state + tail
+    """Eq. (7), last line, for arrays (see :func:`eq7_state`)."""
+    return _eq7_state(np.ascontiguousarray(w, dtype=np.float64), np.ascontiguousarray(y_state, dtype=np.float64))
 
 
 def invert_pi(model: PIModel) -> InversePI:

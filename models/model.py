@@ -1,6 +1,6 @@
 """A fitted hysteresis model in physical units, and its model file.
 
-Every model kind (``pi``, ``pi-asym``, ``preisach``, ``preisach-cont``,
+Every model kind (``pi``, ``pi-asym``, ``pi-mod``, ``preisach``, ``preisach-cont``,
 ``bouc-wen``) is a *core* working in normalized units with the same shape:
 
 - ``init(x0) -> state``, ``step(state, x) -> (state, y)``, pure;

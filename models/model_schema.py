@@ -36,6 +36,8 @@ from .schema import Finite, NonNegative, Positive
 
 #: Most operators/relays a model file may hold (the paper's largest, Preisach n = 50, has 1275).
 MAX_ELEMENTS = 100_000
+#: Lowest closed flow a pi-mod file may state (normalized units; the default: none).
+MAX_FLOOR = 1e300
 #: Most Everett mesh points per axis.
 MAX_MESH = 1000
 
@@ -136,6 +138,33 @@ class InversePIAsymParams(msgspec.Struct, forbid_unknown_fields=True):
     forward: PIAsymParams
 
 
+class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
+    """Kuhnen's modified PI: play part (``r``, ``w``, memory ``y0``), dead-zone superposition
+    (thresholds ``h`` ascending with one zero, weights ``g``), offset and closed flow ``floor``."""
+
+    r: list[NonNegative]
+    w: list[Finite]
+    h: list[Finite]
+    g: list[Finite]
+    offset: Finite = 0.0
+    floor: Finite = -MAX_FLOOR
+    y0: list[Finite] | None = None
+
+    def __post_init__(self):
+        _same_length(self, ("r", "w"), ("y0",))
+        _ascending(self.r, "r")
+        _same_length(self, ("h", "g"))
+        _ascending(self.h, "h")
+        if self.h.count(0.0) != 1:
+            raise ValueError("h: must hold exactly one zero threshold")
+
+
+class InversePIModParams(msgspec.Struct, forbid_unknown_fields=True):
+    """The inverse of a modified PI is computed in closed form from its forward model."""
+
+    forward: PIModParams
+
+
 class PreisachParams(msgspec.Struct, forbid_unknown_fields=True):
     """Relays ``(alpha_i, beta_i)`` with ``alpha >= beta`` and their weights ``mu``."""
 
@@ -208,6 +237,8 @@ register("pi", "models.pi:PIModel", PIParams,
          inverse=("inverse-pi", "models.inverse_pi:InversePI", InversePIParams))
 register("pi-asym", "models.pi_asym:AsymmetricPIModel", PIAsymParams,
          inverse=("inverse-pi-asym", "models.pi_asym:InverseAsymmetricPI", InversePIAsymParams))
+register("pi-mod", "models.pi_mod:ModifiedPIModel", PIModParams,
+         inverse=("inverse-pi-mod", "models.pi_mod:InverseModifiedPI", InversePIModParams))
 register("preisach", "models.preisach:PreisachModel", PreisachParams)
 register("preisach-cont", "models.preisach_cont:ContinuousPreisachModel", PreisachContParams)
 register("bouc-wen", "models.bouc_wen:BoucWenModel", BoucWenParams)

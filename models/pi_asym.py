@@ -55,6 +55,7 @@ from numba import njit
 from scipy.linalg import eigh
 from scipy.optimize import lsq_linear, minimize, nnls
 
+from . import play
 from .pi import MIN_SLOPE, thresholds
 
 #: Search box of the envelope parameters ``a`` (widening at the top) and ``p`` (shape).
@@ -72,82 +73,43 @@ def _psi(x, p):
     return u**p
 
 
+@njit(cache=True, inline="always")
+def down_scale(x, a, p):
+    """Factor of every descending threshold at input ``x``: ``1 + a psi(x)``."""
+    return 1.0 + a * _psi(x, p)
+
+
 @njit(cache=True)
-def _clamp_bank(r, a, p, y, x):
-    """Operator outputs after input ``x`` from states ``y`` (not modified)."""
-    hi_scale = 1.0 + a * _psi(x, p)
-    out = np.empty_like(y)
-    for i in range(r.shape[0]):
-        lo = x - r[i]
-        hi = x + r[i] * hi_scale
-        v = y[i]
-        if v < lo:
-            v = lo
-        elif v > hi:
-            v = hi
-        out[i] = v
+def _down_scales(x, a, p):
+    out = np.empty(x.shape[0])
+    for k in range(x.shape[0]):
+        out[k] = down_scale(x[k], a, p)
     return out
 
 
 @njit(cache=True)
-def _response(r, a, p, x, state):
-    n = r.shape[0]
-    out = np.empty((x.shape[0], n))
-    y = state.copy()
-    for k in range(x.shape[0]):
-        hi_scale = 1.0 + a * _psi(x[k], p)
-        for i in range(n):
-            lo = x[k] - r[i]
-            hi = x[k] + r[i] * hi_scale
-            v = y[i]
-            if v < lo:
-                v = lo
-            elif v > hi:
-                v = hi
-            y[i] = v
-            out[k, i] = v
-    return out, y
+def _output(r, w, a, p, y, x):
+    """Weighted output after input ``x`` from operator states ``y`` (not modified)."""
+    return play.bank_step(r, w, down_scale(x, a, p), y.copy(), x)
 
 
 @njit(cache=True)
-def _weighted(r, w, a, p, x, state):
-    n = r.shape[0]
-    out = np.empty(x.shape[0])
-    y = state.copy()
-    for k in range(x.shape[0]):
-        hi_scale = 1.0 + a * _psi(x[k], p)
-        acc = 0.0
-        for i in range(n):
-            lo = x[k] - r[i]
-            hi = x[k] + r[i] * hi_scale
-            v = y[i]
-            if v < lo:
-                v = lo
-            elif v > hi:
-                v = hi
-            y[i] = v
-            acc += w[i] * v
-        out[k] = acc
-    return out, y
-
-
-@njit(cache=True)
-def _solve_input(r, w, a, p, state, target, x_guess):
+def solve_input(r, w, a, p, state, target, x_guess):
     """The input ``x`` whose output from ``state`` equals ``target`` (monotone; bisection)."""
     lo = x_guess - 1.0
     hi = x_guess + 1.0
     width = 2.0
-    while np.dot(w, _clamp_bank(r, a, p, state, lo)) > target:
+    while _output(r, w, a, p, state, lo) > target:
         width *= 2.0
         lo = hi - width
-    while np.dot(w, _clamp_bank(r, a, p, state, hi)) < target:
+    while _output(r, w, a, p, state, hi) < target:
         width *= 2.0
         hi = lo + width
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if mid <= lo or mid >= hi:
             break
-        if np.dot(w, _clamp_bank(r, a, p, state, mid)) < target:
+        if _output(r, w, a, p, state, mid) < target:
             lo = mid
         else:
             hi = mid
@@ -160,8 +122,8 @@ def _invert(r, w, a, p, y, state, x_guess):
     s = state.copy()
     x = x_guess
     for k in range(y.shape[0]):
-        x = _solve_input(r, w, a, p, s, y[k], x)
-        s = _clamp_bank(r, a, p, s, x)
+        x = solve_input(r, w, a, p, s, y[k], x)
+        play.bank_step(r, w, down_scale(x, a, p), s, x)
         out[k] = x
     return out, s
 
@@ -208,15 +170,16 @@ class AsymmetricPIModel:
 
     def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
         """One sample of the generalized play bank, then Eq. (4)."""
-        s = _clamp_bank(self.r, self.a, self.p, state, float(x))
-        return s, float(self.w @ s) + self.offset
+        s = np.array(state, dtype=np.float64)
+        y = play.bank_step(self.r, self.w, down_scale(float(x), self.a, self.p), s, float(x))
+        return s, y + self.offset
 
     def predict(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Output over an input sequence; ``(y, final_state)``."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        y, s = _weighted(self.r, self.w, self.a, self.p, x, np.asarray(state, dtype=np.float64))
+        y, s = play.play_weighted(self.r, self.w, x, state, _down_scales(x, self.a, self.p))
         return y + self.offset, s
 
     def response(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +187,7 @@ class AsymmetricPIModel:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        return _response(self.r, self.a, self.p, x, np.asarray(state, dtype=np.float64))
+        return play.play_response(self.r, x, state, _down_scales(x, self.a, self.p))
 
     def slopes(self) -> tuple[np.ndarray, np.ndarray]:
         """Least output slopes with operators 0..j active: rising ``s_j``, falling (inputs within [-1, 1])."""
@@ -307,7 +270,7 @@ class InverseAsymmetricPI:
 def regressors(r: np.ndarray, a: float, p: float, x: np.ndarray) -> np.ndarray:
     """Operator outputs (N x m) for the fit, operators relaxed at ``x[0]``."""
     x = np.ascontiguousarray(x, dtype=np.float64)
-    return _response(r, a, p, x, np.full(len(r), x[0]))[0]
+    return play.play_response(r, x, np.full(len(r), x[0]), _down_scales(x, a, p))[0]
 
 
 def _design(r, a, p, x):

@@ -1,6 +1,8 @@
 """The control laws over arrays of candidates (controller/laws)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -32,29 +34,49 @@ def pid_params(batch=1, **kw):
 
 # -- feedforward --------------------------------------------------------------
 
-def test_inverse_bank_matches_the_models_inverse_pi():
+def test_feedforward_matches_the_models_inverse_pi():
+    """Inverting from the memory the forward model keeps is the model's own inverse (Eq. 7), sample by sample."""
     rng = np.random.default_rng(1)
     y = 98 + 50 * np.sin(np.linspace(0, 12, 400)) * np.linspace(0.1, 1, 400) + rng.normal(0, 2, 400)
     expected, _ = MODEL.inverse_predict(y)
-    bank = ffw.inverse_bank(MODEL, batch=3)
-    s = ffw.init(bank, y[0])
+    bank = ffw.bank(MODEL, batch=3)
+    s = ffw.init(bank, expected[0])
     for k in range(len(y)):
-        s, u = ffw.step(bank, s, np.full(3, y[k]))
+        u = ffw.invert(bank, s, np.full(3, y[k]))
         np.testing.assert_allclose(u, expected[k], rtol=0, atol=1e-9)
+        s, _ = ffw.step(bank, s, u)
 
 
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.floats(42.0, 68.0), min_size=2, max_size=60))
 def test_inverse_of_forward_gives_the_duty_back(duty):
-    """Eq. (7): the inverse bank fed with the forward bank's flow returns the duty."""
-    fwd, inv = ffw.forward_bank(MODEL), ffw.inverse_bank(MODEL)
+    """Eq. (7): the inverse fed with the forward model's flow returns the duty."""
+    fwd = ffw.bank(MODEL)
     sf = ffw.init(fwd, duty[0])
-    sf, flow0 = ffw.step(fwd, sf, np.array([duty[0]]))
-    si = ffw.init(inv, flow0)
     for d in duty:
-        sf, flow = ffw.step(fwd, sf, np.array([d]))
-        si, back = ffw.step(inv, si, flow)
+        back = ffw.invert(fwd, sf, ffw.step(fwd, sf, np.array([d]))[1])
+        sf, _ = ffw.step(fwd, sf, np.array([d]))
         assert back[0] == pytest.approx(d, abs=1e-9)
+
+
+def test_feedforward_rejects_a_kind_without_inverse():
+    from models.bouc_wen import BoucWenModel
+
+    m = FittedModel("bouc-wen", BoucWenModel(1.0, 0.5, 1.0, 1.0, 0.1, 0.0), Scaling(55.0, 17.0), Scaling(98.0, 86.0))
+    with pytest.raises(ValueError, match="no inverse"):
+        ffw.bank(m)
+
+
+def test_no_flow_asked_gives_the_ready_duty_below_the_onset():
+    """A zero reference: ready_margin_pct below the duty where the model's flow starts (0 L/min)."""
+    bank = ffw.bank(MODEL, ready_margin_pct=2.0)
+    s = ffw.init(bank, 60.0)
+    onset = ffw.invert(dataclasses.replace(bank, ready_margin_pct=np.zeros(1)), s, np.array([0.0]))[0]
+    ready = ffw.invert(bank, s, np.array([0.0]))[0]
+    assert ready == pytest.approx(onset - 2.0, abs=1e-12)
+    # the model passes no flow at the ready duty, and some just above the onset
+    assert ffw.step(bank, s, np.array([ready]))[1][0] == 0.0
+    assert ffw.step(bank, s, np.array([onset + 0.5]))[1][0] > 0.0
 
 
 # -- limits -------------------------------------------------------------------
@@ -160,7 +182,7 @@ def test_array_filter_agrees_with_filterpy():
 
 def lag_delay_plant(model: FittedModel, tau_s, delay_s, bias_lpm, n, batch):
     """The forward model plus a constant flow error, first-order lag and pure delay (noise-free)."""
-    fwd = ffw.forward_bank(model, batch)
+    fwd = ffw.bank(model, batch)
     a = np.exp(-DT / tau_s)
     d = int(round(delay_s / DT))
     return fwd, a, d
@@ -187,7 +209,7 @@ def closed_loop(params: control.ControllerParams, ref: np.ndarray, tau_s=0.02, d
 def make(mode, batch=1, **pid_kw):
     return control.ControllerParams(
         mode, limits.Limits.make(batch, 0, 100, 5000.0),
-        inverse=ffw.inverse_bank(MODEL, batch), forward=ffw.forward_bank(MODEL, batch),
+        forward=ffw.bank(MODEL, batch),
         pid=pid_params(batch, **pid_kw), kf=kalman.KFParams.make(0.02, 0.005, DT, 0.5, 0.05, 0.3, batch),
     )
 
@@ -225,18 +247,6 @@ def test_transfer_is_bumpless():
     assert cmd2.duty_pct[0] == pytest.approx(cmd.duty_pct[0], abs=5.0 * DT * 0.3 * 10 + 1e-6)
 
 
-def test_inverse_state_from_forward_is_eq7_of_the_model():
-    from models.inverse_pi import _initial_state
-
-    fwd, inv = ffw.forward_bank(MODEL, 2), ffw.inverse_bank(MODEL, 2)
-    sf = ffw.init(fwd, np.array([40.0, 65.0]))
-    for d in ([60.0, 45.0], [50.0, 55.0]):
-        sf, _ = ffw.step(fwd, sf, np.array(d))
-    got = ffw.inverse_state_from_forward(inv, fwd, sf)
-    for j in range(2):
-        np.testing.assert_allclose(got[j], _initial_state(MODEL.core.w, sf[j]), atol=1e-12)
-
-
 @settings(max_examples=20, deadline=None)
 @given(st.lists(st.floats(0.0, 200.0), min_size=1, max_size=50), st.floats(0.0, 0.05))
 def test_lead_with_equal_time_constants_is_the_identity(ref, tau):
@@ -261,13 +271,15 @@ def test_lead_cancels_the_valve_lag():
 
 def test_stacked_banks_step_like_each_model_alone():
     other = synthetic_model(seed=5)
-    both = ffw.stack([ffw.inverse_bank(MODEL), ffw.inverse_bank(other)])
-    alone = [ffw.inverse_bank(MODEL), ffw.inverse_bank(other)]
-    y = [90.0, 120.0, 60.0, 100.0]
-    s2 = ffw.init(both, y[0])
-    s1 = [ffw.init(b, y[0]) for b in alone]
-    for v in y:
-        s2, u2 = ffw.step(both, s2, np.full(2, v))
+    both = ffw.stack([ffw.bank(MODEL), ffw.bank(other)])
+    alone = [ffw.bank(MODEL), ffw.bank(other)]
+    duty = [50.0, 62.0, 45.0, 55.0]
+    s2 = ffw.init(both, duty[0])
+    s1 = [ffw.init(b, duty[0]) for b in alone]
+    for d in duty:
+        u2 = ffw.invert(both, s2, np.full(2, 100.0))
+        s2, q2 = ffw.step(both, s2, np.full(2, d))
         for j, b in enumerate(alone):
-            s1[j], u1 = ffw.step(b, s1[j], np.array([v]))
-            assert u2[j] == u1[0]
+            assert u2[j] == ffw.invert(b, s1[j], np.array([100.0]))[0]
+            s1[j], q1 = ffw.step(b, s1[j], np.array([d]))
+            assert q2[j] == q1[0]

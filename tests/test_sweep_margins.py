@@ -88,7 +88,6 @@ def test_feedforward_alone_has_no_loop():
     from controller.laws import feedforward as ffw
     from tests.test_laws import MODEL
 
-    p = control.ControllerParams("ff", limits.Limits.make(1), inverse=ffw.inverse_bank(MODEL),
-                                 forward=ffw.forward_bank(MODEL))
+    p = control.ControllerParams("ff", limits.Limits.make(1), forward=ffw.bank(MODEL))
     m = MG.loop_margins(p, 0, op())
     assert math.isinf(m.gain_margin_db) and math.isinf(m.phase_margin_deg)

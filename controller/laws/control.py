@@ -4,9 +4,9 @@
 word       duty                                                   feedback
 =========  =====================================================  ==========================
 ``pid``    ``PID(ref - meas)``                                    PID alone
-``ff``     ``invPI(F r)``                                         none
-``ff+pid`` ``invPI(F r) + PID(ref - meas)``                       PID around the feedforward
-``ff+kf``  ``invPI(F r - bias_hat)``                              Kalman bias estimate
+``ff``     ``inv(F r)``                                           none
+``ff+pid`` ``inv(F r) + PID(ref - meas)``                         PID around the feedforward
+``ff+kf``  ``inv(F r - bias_hat)``                                Kalman bias estimate
 =========  =====================================================  ==========================
 
 ``r`` is the feedforward's reference: ``ref`` itself, or the reference
@@ -14,7 +14,10 @@ word       duty                                                   feedback
 it as ``ref_ff_lpm``), which lets the feedforward act the valve's transport
 delay early. ``F`` is the lag inversion of
 :class:`controller.laws.feedforward.LeadParams` (identity when absent).
-The feedback always compares the measured flow with ``ref`` now.
+The feedback always compares the measured flow with ``ref`` now. ``inv`` is
+the inverse of the feedforward's model, of any invertible kind
+(:mod:`controller.laws.feedforward`), from the model's memory of the duty
+actually applied.
 
 Every duty passes the same rate limit and [min, max] clamp
 (:mod:`controller.laws.limits`). ``ff_pct`` in :class:`Command` is the
@@ -43,12 +46,11 @@ class ControllerParams:
     mode : str
         One of :data:`MODES` (the same for the whole batch).
     limits : Limits
-    inverse : PIBank or None
-        Feedforward (modes starting with ``ff``).
-    forward : PIBank or None
-        Forward model (modes starting with ``ff``): the inverse's memory starts
-        consistent with the valve's at the initial duty, and ``ff+kf`` takes
-        the filter's model flow ``m[k]`` from it.
+    forward : ModelBank or None
+        The feedforward's model (modes starting with ``ff``): its inverse is the
+        feedforward, its forward part follows the applied duty (the memory the
+        inverse starts from), and ``ff+kf`` takes the filter's model flow
+        ``m[k]`` from it.
     pid : PIDParams or None
         ``pid`` and ``ff+pid``.
     kf : KFParams or None
@@ -59,8 +61,7 @@ class ControllerParams:
 
     mode: str
     limits: limits.Limits
-    inverse: ffw.PIBank | None = None
-    forward: ffw.PIBank | None = None
+    forward: ffw.ModelBank | None = None
     pid: pid.PIDParams | None = None
     kf: kalman.KFParams | None = None
     lead: ffw.LeadParams | None = None
@@ -68,7 +69,7 @@ class ControllerParams:
     def __post_init__(self):
         if self.mode not in MODES:
             raise ValueError(f"unknown controller {self.mode!r} (one of {', '.join(MODES)})")
-        need = {"ff": ("inverse", "forward"), "pid": ("pid",), "ff+pid": ("inverse", "forward", "pid"), "ff+kf": ("inverse", "forward", "kf")}
+        need = {"ff": ("forward",), "pid": ("pid",), "ff+pid": ("forward", "pid"), "ff+kf": ("forward", "kf")}
         for name in need[self.mode]:
             if getattr(self, name) is None:
                 raise ValueError(f"controller {self.mode!r} needs {name}")
@@ -103,7 +104,7 @@ def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:
     pst = pid.init(p.pid, meas) if p.pid is not None else None
     kst = kalman.init(p.kf, meas) if p.kf is not None else None
     # The lead starts at rest at zero flow: the first reference is a step for it.
-    lst = ffw.lead_init(p.lead, 0.0) if (p.lead is not None and p.inverse is not None) else None
+    lst = ffw.lead_init(p.lead, 0.0) if (p.lead is not None and p.forward is not None) else None
     return ControllerState(fwd, pst, kst, duty, lst)
 
 
@@ -121,11 +122,10 @@ def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm:
     r = ref_lpm if ref_ff_lpm is None else ref_ff_lpm
     if lst is not None:
         lst, r = ffw.lead_step(p.lead, lst, r, dt_s)
-    # The inverse's operator memory is taken from the forward's, which saw the duty actually
-    # applied (Eq. 7), so a duty the limits cut short leaves no mismatch behind and the
-    # forward model's flow m[k] is exactly the flow the inverse aimed at.
-    inv = ffw.inverse_state_from_forward(p.inverse, p.forward, fwd)
-    ff = ffw.step(p.inverse, inv, r)[1]
+    # The inverse starts from the forward model's memory, which saw the duty actually applied
+    # (Eq. 7), so a duty the limits cut short leaves no mismatch behind and the forward
+    # model's flow m[k] is exactly the flow the inverse aimed at.
+    ff = ffw.invert(p.forward, fwd, r)
     if p.mode == "ff":
         duty = limits.apply(p.limits, ff, s.duty_pct, dt_s)
     elif p.mode == "ff+pid":
@@ -133,7 +133,7 @@ def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm:
     else:  # ff+kf
         kst = kalman.update(p.kf, kst, meas_lpm)
         # A reference of no flow closes the valve whatever the bias estimate says.
-        u = np.where(r > 0.0, ffw.step(p.inverse, inv, r - kst.bias_lpm)[1], ff)
+        u = np.where(r > 0.0, ffw.invert(p.forward, fwd, r - kst.bias_lpm), ff)
         duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
     fwd, model = ffw.step(p.forward, fwd, duty)
     if kst is not None:
@@ -173,8 +173,7 @@ def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> 
     if s_old.kf is not None and s.kf is not None:
         s = s._replace(kf=s.kf._replace(bias_lpm=s_old.kf.bias_lpm.copy()))
     if s.pid is not None:
-        ff = (ffw.step(p.inverse, ffw.inverse_state_from_forward(p.inverse, p.forward, s.forward), ref_lpm)[1]
-              if p.inverse is not None else 0.0)
+        ff = ffw.invert(p.forward, s.forward, ref_lpm) if p.forward is not None else 0.0
         s = s._replace(pid=pid.transfer(p.pid, s.pid, ref_lpm, meas_lpm, ff, s_old.duty_pct))
     return s
 
@@ -190,4 +189,4 @@ def repeat(p: ControllerParams, times: int) -> ControllerParams:
                                            for f in dataclasses.fields(obj)
                                            if isinstance(getattr(obj, f.name), np.ndarray)})
 
-    return dataclasses.replace(p, **{k: rep(getattr(p, k)) for k in ("limits", "inverse", "forward", "pid", "kf", "lead")})
+    return dataclasses.replace(p, **{k: rep(getattr(p, k)) for k in ("limits", "forward", "pid", "kf", "lead")})

@@ -1,161 +1,236 @@
-"""Inverse-PI feedforward, reference flow -> duty, over a batch of candidates.
+"""Model-inverse feedforward, reference flow -> duty, over a batch of candidates.
 
-A :class:`PIBank` is a Prandtl-Ishlinskii operator bank per candidate in
-physical units: the forward model (duty -> flow, Eq. 1 and 4) or its
-closed-form inverse (flow -> duty, Eq. 5-7), taken from a model file
-(:func:`models.model.load_model`).
+A :class:`ModelBank` holds, per candidate, an invertible hysteresis model in
+physical units, taken from a model file (:func:`models.model.load_model`) of
+any invertible kind: ``pi`` (Eq. 1-4 forward, Eq. 5-7 inverse), ``pi-mod``
+(Kuhnen's modified PI: the same play operators, then a dead-zone
+superposition; inverse in closed form, :mod:`models.pi_mod`) or ``pi-asym``
+(generalized play operators; inverse solved per sample to rounding,
+:mod:`models.pi_asym`). Every kind runs the one play operator of
+:mod:`models.play`.
+
+Interface (what the control laws call; arrays of shape (B,)):
+
+- :func:`init` ``(bank, duty0) -> memory``: the valve's operator memory at rest;
+- :func:`step` ``(bank, memory, duty) -> (memory, flow)``: the forward model
+  driven by the duty actually applied (the model flow the Kalman filter needs);
+- :func:`invert` ``(bank, memory, ref) -> duty``: the feedforward, the duty
+  that takes the model from its present memory to the reference flow, without
+  changing the memory (so the duty clamp and rate limit leave no hysteresis
+  mismatch behind: the memory only ever follows the applied duty).
 
 The model is only known on its identified ranges (the scalings' [-1, 1]).
-The operators see the input clipped to that range, as the simulated valve's
+The operators see the duty clipped to that range, as the simulated valve's
 do; below it the valve is taken as linear with the range's average gain
 (flow half-range over duty half-range) down to no flow (never reverse
 flow), and above it as saturated (the inverse never asks for more than the
-top of the range). A reference of zero flow or less closes the valve (0 %). The feedforward is the inverse bank fed
-with the reference flow; the Kalman feedback also runs the forward bank on the
-applied duty to know what flow the model expects.
+top of the range).
+
+No flow asked (a reference of 0 L/min or less): the feedforward returns the
+*ready* duty, ``ready_margin_pct`` below the duty at which the model starts
+to pass flow from its present memory (the cracking duty of the present
+branch). The valve stays closed but ready, so the next breath does not wait
+for the plunger to cross the dead zone; 0 % (valve closed, memory wiped) is
+the loop's safe state, not the feedforward's answer.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from models import play
+from models import pi_asym, pi_mod, play
 from models.model import FittedModel
+
+#: Kinds the feedforward inverts, and how: closed form (Eq. 7 family) or solved per sample.
+INVERTIBLE = {"pi": 0, "pi-mod": 0, "pi-asym": 1}
+#: Default gap between the ready duty and the cracking duty, %.
+READY_MARGIN_PCT = 2.0
 
 
 @dataclass(frozen=True, eq=False)
-class PIBank:
-    """A PI operator bank per candidate, physical units in and out.
+class ModelBank:
+    """An invertible model per candidate, physical units in and out (normalized-unit arrays inside).
 
     Attributes
     ----------
-    r : ndarray, shape (B, n)
-        Thresholds in normalized input units (Eq. 2 forward, Eq. 7 inverse).
-    w : ndarray, shape (B, n)
-        Weights (Eq. 4 forward, Eq. 7 inverse).
-    offset : ndarray, shape (B,)
-        Output offset of the forward model, normalized output units. The
-        inverse subtracts it from its input first; the forward adds it.
-    in_center, in_half : ndarray, shape (B,)
-        Input scaling, ``u = (x - center) / half`` (duty % forward, L/min inverse).
-    out_center, out_half : ndarray, shape (B,)
-        Output scaling back to physical units.
+    method : ndarray of int, shape (B,)
+        0: closed-form inverse (``pi``, ``pi-mod``); 1: solved per sample (``pi-asym``).
+    r, w : ndarray, shape (B, n)
+        Play thresholds and weights (Eq. 2, Eq. 4).
+    a, p : ndarray, shape (B,)
+        Descending-threshold envelope of ``pi-asym`` (``a = 0``: Eq. 1).
+    h, g : ndarray, shape (B, k)
+        Dead-zone superposition on the play output (``pi-mod``; ``[0], [1]``: identity).
+    offset, floor : ndarray, shape (B,)
+        Output offset and the closed flow (``-inf`` when the kind has none), normalized.
+    r_inv, w_inv : ndarray, shape (B, n)
+        Eq. (7) inverse thresholds and weights (unused for method 1).
+    h_inv, g_inv : ndarray, shape (B, k)
+        Inverse dead-zone superposition.
+    closed : ndarray, shape (B,)
+        Normalized flow at or below which the model's valve is closed (``-inf``: none).
     x0 : ndarray, shape (B, n)
-        Operator memory before the first sample (``y_i0`` of Eq. 3, ``x_i'(0)`` of Eq. 7).
-    inverse : bool
-        True for the inverse bank (offset removed from the input).
-    lo_gain : ndarray, shape (B,)
-        Below the identified input range, output change per input change
-        (the range's average gain; its reciprocal for the inverse).
+        Operator memory before the first sample (``y_i0`` of Eq. 3; NaN: at rest).
+    duty_center, duty_half, flow_center, flow_half : ndarray, shape (B,)
+        Scalings, ``u = (x - center) / half``.
+    ready_margin_pct : ndarray, shape (B,)
+        Ready duty below the cracking duty, % (see the module docstring).
     """
 
+    method: np.ndarray
     r: np.ndarray
     w: np.ndarray
+    a: np.ndarray
+    p: np.ndarray
+    h: np.ndarray
+    g: np.ndarray
     offset: np.ndarray
-    in_center: np.ndarray
-    in_half: np.ndarray
-    out_center: np.ndarray
-    out_half: np.ndarray
+    floor: np.ndarray
+    r_inv: np.ndarray
+    w_inv: np.ndarray
+    h_inv: np.ndarray
+    g_inv: np.ndarray
+    closed: np.ndarray
     x0: np.ndarray
-    inverse: bool
-    lo_gain: np.ndarray
+    duty_center: np.ndarray
+    duty_half: np.ndarray
+    flow_center: np.ndarray
+    flow_half: np.ndarray
+    ready_margin_pct: np.ndarray
 
     @property
     def batch(self) -> int:
         return self.r.shape[0]
 
 
-def _bank(core, in_scale, out_scale, x0, inverse: bool, batch: int) -> PIBank:
+def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MARGIN_PCT) -> ModelBank:
+    """The model (forward and inverse) of an invertible kind, repeated ``batch`` times."""
+    if model.kind not in INVERTIBLE:
+        raise ValueError(f"model kind {model.kind!r} has no inverse for feedforward "
+                         f"(one of {', '.join(INVERTIBLE)})")
+    core = model.core
+    n = len(core.r)
+    ident_h, ident_g = np.zeros(1), np.ones(1)
+    a, p, floor, closed = 0.0, 1.0, -np.inf, -np.inf
+    h, g, h_inv, g_inv = ident_h, ident_g, ident_h, ident_g
+    r_inv, w_inv, x0 = np.zeros(n), np.zeros(n), np.full(n, np.nan)
+    if model.kind == "pi-asym":
+        a, p = core.a, core.p
+    else:
+        x0 = core.y0
+        inv = model.inverse if model.inverse is not None else core.inverse()
+        if model.kind == "pi":
+            r_inv, w_inv = inv.r, inv.w
+        else:
+            r_inv, w_inv, h_inv, g_inv = inv.r_inv, inv.w_inv, inv.h_inv, inv.g_inv
+            h, g, floor, closed = core.h, core.g, core.floor, inv.closed
+
     def rows(v):
         return np.tile(np.asarray(v, dtype=np.float64), (batch, 1))
 
     def col(v):
         return np.full(batch, float(v))
 
-    return PIBank(
-        r=rows(core.r), w=rows(core.w), offset=col(core.offset),
-        in_center=col(in_scale.center), in_half=col(in_scale.half_range),
-        out_center=col(out_scale.center), out_half=col(out_scale.half_range),
-        x0=rows(x0), inverse=inverse, lo_gain=col(out_scale.half_range / in_scale.half_range),
+    xs, ys = model.x_scale, model.y_scale
+    return ModelBank(
+        method=np.full(batch, INVERTIBLE[model.kind], dtype=np.int64), r=rows(core.r), w=rows(core.w),
+        a=col(a), p=col(p), h=rows(h), g=rows(g), offset=col(core.offset), floor=col(floor),
+        r_inv=rows(r_inv), w_inv=rows(w_inv), h_inv=rows(h_inv), g_inv=rows(g_inv), closed=col(closed),
+        x0=rows(x0), duty_center=col(xs.center), duty_half=col(xs.half_range), flow_center=col(ys.center),
+        flow_half=col(ys.half_range), ready_margin_pct=col(ready_margin_pct),
     )
 
 
-def inverse_bank(model: FittedModel, batch: int = 1) -> PIBank:
-    """The model's closed-form inverse PI (flow L/min -> duty %), repeated ``batch`` times."""
-    if model.inverse is None:
-        raise ValueError(f"model kind {model.kind!r} has no inverse; feedforward needs a PI model")
-    inv = model.inverse
-    return _bank(inv, model.y_scale, model.x_scale, inv.x0, True, batch)
+def stack(banks: list[ModelBank]) -> ModelBank:
+    """One bank holding the candidates of several (same numbers of operators)."""
+    return ModelBank(**{f.name: np.concatenate([getattr(b, f.name) for b in banks])
+                        for f in dataclasses.fields(ModelBank)})
 
 
-def forward_bank(model: FittedModel, batch: int = 1) -> PIBank:
-    """The model's forward PI (duty % -> flow L/min), repeated ``batch`` times."""
-    return _bank(model.core, model.x_scale, model.y_scale, model.core.y0, False, batch)
-
-
-def stack(banks: list[PIBank]) -> PIBank:
-    """One bank holding the candidates of several (same number of operators)."""
-    f = {k: np.concatenate([getattr(b, k) for b in banks]) for k in
-         ("r", "w", "offset", "in_center", "in_half", "out_center", "out_half", "x0", "lo_gain")}
-    return PIBank(**f, inverse=banks[0].inverse)
-
-
-def _unit_input(bank: PIBank, x: np.ndarray) -> np.ndarray:
-    u = np.minimum(np.maximum((x - bank.in_center) / bank.in_half, -1.0), 1.0)
-    return u - bank.offset if bank.inverse else u
-
-
-def _physical_output(bank: PIBank, s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    y = (bank.w * s).sum(axis=1)
-    if not bank.inverse:
-        y = y + bank.offset
-    below = np.minimum(x - (bank.in_center - bank.in_half), 0.0)
-    y = y * bank.out_half + bank.out_center + bank.lo_gain * below
-    if bank.inverse:
-        return np.where(x > 0.0, y, 0.0)  # no flow asked: the valve closed
-    return np.maximum(y, 0.0)  # no reverse flow through a closed valve
-
-
-def init(bank: PIBank, x0) -> np.ndarray:
-    """Operator states at the first input ``x0`` (shape (B,) or scalar), Eq. (3)."""
-    u = np.broadcast_to(_unit_input(bank, x0), (bank.batch,))
+def init(bank: ModelBank, duty0_pct) -> np.ndarray:
+    """Operator memory at the first duty (shape (B,) or scalar), Eq. (3)."""
+    d = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (bank.batch,))
+    u = np.clip((d - bank.duty_center) / bank.duty_half, -1.0, 1.0)
     return play.init(bank.r, u[:, None], bank.x0)
 
 
-def step(bank: PIBank, state: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
-    """One sample for every candidate: Eq. (1)/(5) on the bank, then Eq. (4)/(6).
+@njit(cache=True, inline="always")
+def _forward(bk, j, state, d):
+    """Model flow (L/min) of candidate j after duty ``d``; advances ``state`` (its operator memory)."""
+    (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0,
+     dc, dh, fc, fh, margin) = bk
+    u = min(max((d - dc[j]) / dh[j], -1.0), 1.0)
+    acc = play.bank_step(r[j], w[j], pi_asym.down_scale(u, a[j], p[j]), state, u)
+    y = max(pi_mod.dead_zone(h[j], g[j], acc) + offset[j], floor[j])
+    below = min(d - (dc[j] - dh[j]), 0.0)
+    return max(y * fh[j] + fc[j] + fh[j] / dh[j] * below, 0.0)  # no reverse flow through a closed valve
 
-    Parameters
-    ----------
-    x : ndarray, shape (B,)
-        Input in physical units (reference flow L/min for the inverse bank,
-        duty % for the forward bank).
 
-    Returns
-    -------
-    state : ndarray, shape (B, n)
-    y : ndarray, shape (B,)
-        Output in physical units (duty % from the inverse bank).
+@njit(cache=True, inline="always")
+def _solve(bk, j, state, work, q, closed):
+    """Duty (%) that takes candidate j's model from ``state`` to flow ``q`` (L/min); ``state`` unchanged."""
+    (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, _, x0,
+     dc, dh, fc, fh, margin) = bk
+    t = min(max((q - fc[j]) / fh[j], -1.0), 1.0)  # the model's flow range; above it: saturated
+    if method[j] == 1:
+        guess = 0.0
+        for i in range(state.shape[0]):
+            guess += state[i]
+        u = pi_asym.solve_input(r[j], w[j], a[j], p[j], state, t - offset[j], guess / state.shape[0])
+    else:
+        u = pi_mod.solve(r[j], w[j], r_inv[j], w_inv[j], h_inv[j], g_inv[j], offset[j], closed, -1.0,
+                         state, work, t)
+    u = min(u, 1.0)
+    below = min(q - (fc[j] - fh[j]), 0.0)  # below the flow range: the range's average gain
+    return u * dh[j] + dc[j] + dh[j] / fh[j] * below
+
+
+@njit(cache=True)
+def _step(bk, state, duty, out_state, flow):
+    for j in range(duty.shape[0]):
+        out_state[j] = state[j]
+        flow[j] = _forward(bk, j, out_state[j], duty[j])
+
+
+@njit(cache=True)
+def _invert(bk, state, ref, out):
+    closed_all = bk[13]
+    fc, fh, margin = bk[17], bk[18], bk[19]
+    work = np.empty(state.shape[1])
+    for j in range(ref.shape[0]):
+        if ref[j] > 0.0:
+            out[j] = _solve(bk, j, state[j], work, ref[j], closed_all[j])
+        else:  # no flow asked: ready, just below the flow's onset on the present branch
+            onset = max(closed_all[j] * fh[j] + fc[j], 0.0)
+            out[j] = _solve(bk, j, state[j], work, onset, -np.inf) - margin[j]
+
+
+def _arrays(bank: ModelBank) -> tuple:
+    return tuple(getattr(bank, f.name) for f in dataclasses.fields(ModelBank))
+
+
+def step(bank: ModelBank, state: np.ndarray, duty_pct) -> tuple[np.ndarray, np.ndarray]:
+    """The forward model for every candidate: duty (%) in, ``(memory, flow L/min)`` out; pure."""
+    duty = np.ascontiguousarray(np.broadcast_to(np.asarray(duty_pct, dtype=np.float64), (bank.batch,)))
+    out, flow = np.empty_like(state), np.empty(bank.batch)
+    _step(_arrays(bank), state, duty, out, flow)
+    return out, flow
+
+
+def invert(bank: ModelBank, state: np.ndarray, ref_lpm) -> np.ndarray:
+    """The feedforward: duty (%) per candidate that takes the model from ``state`` to ``ref_lpm``.
+
+    Exact for the closed-form kinds (``forward(invert(ref)) == ref`` within the model's
+    ranges), to rounding for ``pi-asym``; a reference of no flow gives the ready duty.
     """
-    s = play.step(bank.r, state, _unit_input(bank, x)[:, None])
-    return s, _physical_output(bank, s, x)
-
-
-
-def inverse_state_from_forward(inv: PIBank, fwd: PIBank, fwd_state: np.ndarray) -> np.ndarray:
-    """Inverse operator memory consistent with the forward bank's memory, Eq. (7) last line.
-
-    ``x_i' = sum_{j<i} w_j y_i + sum_{j>=i} w_j y_j`` per candidate (axis 1),
-    with ``w`` the forward weights and ``y`` the forward operator outputs. With
-    it ``forward(inverse(y)) == y`` from the next sample on, whatever duty the
-    limits actually let through before.
-    """
-    w = fwd.w
-    head = np.cumsum(w, axis=1) - w  # sum_{j<i} w_j
-    tail = np.cumsum((w * fwd_state)[:, ::-1], axis=1)[:, ::-1]  # sum_{j>=i} w_j y_j
-    return head * fwd_state + tail
+    ref = np.ascontiguousarray(np.broadcast_to(np.asarray(ref_lpm, dtype=np.float64), (bank.batch,)))
+    out = np.empty(bank.batch)
+    _invert(_arrays(bank), state, ref, out)
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -88,7 +88,7 @@ def operating_point(plant_params, flow_lpm: float, rate_hz: float) -> OperatingP
                           int(round(plant_params.transport_delay / dt)), dt)
 
 
-def model_gain(forward: ffw.PIBank, j: int, flow_lpm: float) -> float:
+def model_gain(forward: ffw.ModelBank, j: int, flow_lpm: float) -> float:
     """Slope (L/min per %) of candidate ``j``'s forward model on its ascending branch at ``flow_lpm``."""
     bank = _row(forward, j)
     duty = np.linspace(0.0, 100.0, RAMP_STEPS)
@@ -100,7 +100,7 @@ def model_gain(forward: ffw.PIBank, j: int, flow_lpm: float) -> float:
     return _slope_at(duty, flow, flow_lpm)[1]
 
 
-def _row(bank: ffw.PIBank, j: int) -> ffw.PIBank:
+def _row(bank: ffw.ModelBank, j: int) -> ffw.ModelBank:
     import dataclasses
 
     return dataclasses.replace(bank, **{f.name: getattr(bank, f.name)[j:j + 1] for f in dataclasses.fields(bank)
