@@ -22,8 +22,10 @@ from models.recording import InputError
 from models.schema import Finite, KeyId, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
+from .alarms import AlarmSettings
 from .laws import control
 from .loop import LoopSettings
+from .supervisor import SupervisorSettings
 
 DEFAULT_RUN = "config/run.toml"
 
@@ -97,6 +99,27 @@ class ValveNode(_Section):
     command_timeout_ms: Positive = 100.0  # no cmd/duty for this long -> the node closes its valve
 
 
+class Alarms(_Section):
+    """:class:`controller.alarms.AlarmSettings`: thresholds and hold times of the online alarms."""
+
+    error_tau_s: Positive = 0.02
+    saturated_margin_pct: NonNegative = 0.5
+    saturated_error_lpm: NonNegative = 5.0
+    saturated_hold_s: NonNegative = 0.1
+    mismatch_lpm: Positive = 10.0
+    mismatch_hold_s: NonNegative = 0.1
+    supply_low_bar: Finite = 2.0
+    supply_hold_s: NonNegative = 0.02
+
+
+class Fallback(_Section):
+    """:class:`controller.supervisor.SupervisorSettings`: when ``ff+kf`` hands over to ``ff+pid``."""
+
+    innovation_limit_lpm: Positive = 10.0
+    innovation_hold_s: NonNegative = 0.2
+    tau_s: Positive = 0.02
+
+
 class RunFile(_Section):
     """The whole file: top-level keys, then one struct per section."""
 
@@ -118,6 +141,8 @@ class RunFile(_Section):
     kf: KF = msgspec.field(default_factory=KF)
     zenoh: Zenoh = msgspec.field(default_factory=Zenoh)
     valve_node: ValveNode = msgspec.field(default_factory=ValveNode)
+    alarms: Alarms = msgspec.field(default_factory=Alarms)
+    fallback: Fallback = msgspec.field(default_factory=Fallback)
 
     def __post_init__(self):
         if self.controller not in control.MODES:
@@ -156,7 +181,8 @@ class RunConfig:
         lp = self["loop"]
         return LoopSettings(rate_hz=lp["rate_hz"], stale_ms=lp["stale_ms"], ref_stale_ms=lp["ref_stale_ms"],
                             safe_duty_pct=lp["safe_duty_pct"], flow_max_lpm=lp["flow_max_lpm"],
-                            status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"])
+                            status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"],
+                            alarms=AlarmSettings(**self["alarms"]), fallback=SupervisorSettings(**self["fallback"]))
 
 
 def check_sections(sections: dict, source: str) -> dict:
@@ -249,6 +275,14 @@ def controller_params(cfg: RunConfig, word: str, model, preview: bool = False) -
         kw["kf"] = kalman.KFParams.make(valve["tau_s"], valve["delay_s"], dt, k["q_flow_lpm"], k["q_bias_lpm"],
                                         k["r_lpm"])
     return control.ControllerParams(word, lim, **kw)
+
+
+def supervisor(cfg: RunConfig, word: str, model):
+    """The run's :class:`controller.supervisor.Supervisor`: ``word`` in force, every word ready to switch to."""
+    from .supervisor import Supervisor
+
+    laws = {w: controller_params(cfg, w, model) for w in control.MODES}
+    return Supervisor(laws, word, cfg.loop.fallback)
 
 
 def preview_s(cfg: RunConfig, reference: str) -> float:

@@ -19,8 +19,12 @@ Per step (one period):
    ``safe_duty_pct``, fault ``stale``, or ``no_measurement`` if none ever
    came since the start); fresh data -> ``running`` again, resumed
    bumplessly (:func:`controller.laws.control.resume`);
-4. the control law (the batch of one) or the safe duty;
-5. command, tracking error, status at ``status_hz``, record row;
+4. the control law of the word in force, through the
+   :class:`controller.supervisor.Supervisor` (a word asked for on the
+   transport's ``poll_mode`` takes over bumplessly; a failing law falls back
+   to ``ff+pid``, then to the fault state), or the safe duty;
+5. command, tracking error, alarms (:mod:`controller.alarms`), status at
+   ``status_hz``, record row;
 6. compute time = end of the step - wake.
 
 Allocation: the loop's per-step records are preallocated arrays; the laws,
@@ -43,11 +47,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .alarms import AlarmSettings, Alarms
 from .laws import control
+from .supervisor import Supervisor, SupervisorSettings
 from .watchdog import FAULT, RUNNING, SAFE, STATES, Faults, Watchdog, in_range
 
-#: Columns of the run recording (DESIGN.md), plus the age of the newest measurement.
-RECORD_COLUMNS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state", "meas_age_ms")
+#: Columns of the run recording (DESIGN.md), then what the rate limit and the clamp changed
+#: (``duty = ff + fb + limit``) and the age of the newest measurement.
+RECORD_COLUMNS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state", "controller",
+                  "limit_duty_pct", "meas_age_ms")
 
 
 @dataclass(frozen=True)
@@ -77,6 +85,10 @@ class LoopSettings:
         that other processes on the machine cannot delay its wake-ups; 0 keeps
         the normal scheduler. Without the permission (root or CAP_SYS_NICE)
         the loop runs with the normal scheduler and says so on stderr.
+    alarms : AlarmSettings
+        Thresholds and hold times of the online alarms.
+    fallback : SupervisorSettings
+        When a Kalman-corrected law counts as failed.
     """
 
     rate_hz: float = 1000.0
@@ -88,6 +100,8 @@ class LoopSettings:
     status_hz: float = 10.0
     spin_s: float = 300e-6
     rt_priority: int = 0
+    alarms: AlarmSettings = AlarmSettings()
+    fallback: SupervisorSettings = SupervisorSettings()
 
 
 @contextlib.contextmanager
@@ -172,35 +186,39 @@ class ProfileReference:
 class _Columns:
     """Preallocated per-step arrays (grown by doubling when a run has no set length)."""
 
-    FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "meas_age_ms",
-              "lateness_s", "compute_s")
+    FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "limit_duty_pct",
+              "meas_age_ms", "lateness_s", "compute_s")
 
     def __init__(self, capacity: int):
         self.n = 0
         self.a = {f: np.empty(capacity) for f in self.FIELDS}
         self.state = np.empty(capacity, dtype=np.int8)
+        self.word = np.empty(capacity, dtype=np.int8)  # index into control.MODES
 
     def grow(self) -> None:
         cap = 2 * len(self.state)
         for f, v in self.a.items():
             self.a[f] = np.resize(v, cap)
         self.state = np.resize(self.state, cap)
+        self.word = np.resize(self.word, cap)
 
     def trimmed(self) -> dict[str, np.ndarray]:
         out = {f: v[: self.n].copy() for f, v in self.a.items()}
         out["state"] = self.state[: self.n].copy()
+        out["controller"] = np.asarray(control.MODES)[self.word[: self.n]]
         return out
 
 
 @dataclass
 class LoopResult:
-    """What a run leaves: per-step columns, faults, step and overrun counts."""
+    """What a run leaves: per-step columns, faults, alarms, step and overrun counts."""
 
     columns: dict
     faults: Faults
     steps: int
     overruns: int
     settings: LoopSettings
+    alarms: Alarms | None = None
 
     @property
     def rate_hz(self) -> float:
@@ -216,11 +234,13 @@ class Loop:
 
     Parameters
     ----------
-    params : ControllerParams
-        With ``batch == 1``.
+    params : ControllerParams or Supervisor
+        One controller (batch of one), or the words the run may switch between.
     transport : object
         ``poll_measurement(accept) -> (flow | None, n_bad)``, ``command(duty_pct, t_s)``,
-        ``publish_error(t_s, error_lpm)``, ``publish_status(t_s, status)``.
+        ``publish_error(t_s, error_lpm)``, ``publish_status(t_s, status)``; optionally
+        ``poll_mode() -> (word | None, n_bad)`` (runtime switching) and
+        ``supply_bar() -> float | None`` (the supply pressure, for ``supply_low``).
     reference : object
         ``poll(t_s, accept) -> (ref | None, n_bad)`` and ``can_go_stale``; with
         ``preview_s > 0`` also ``ahead(t_s, accept)``, the feedforward's reference.
@@ -228,13 +248,17 @@ class Loop:
     clock : RealClock or SimClock
     writer : RecordingWriter, optional
         Receives one row per step (:data:`RECORD_COLUMNS`), flushed as written.
+    observer : callable, optional
+        Called with each status (``ctrl/status``) the loop publishes, e.g. for a progress line.
     """
 
-    def __init__(self, params: control.ControllerParams, transport, reference, settings: LoopSettings,
-                 clock=None, writer=None):
-        if params.batch != 1:
+    def __init__(self, params, transport, reference, settings: LoopSettings, clock=None, writer=None,
+                 observer=None):
+        sup = params if isinstance(params, Supervisor) else Supervisor.fixed(params)
+        if any(p.batch != 1 for p in sup.laws.values()):
             raise ValueError("the live loop runs one controller (batch of one)")
-        self.params = params
+        self.supervisor = sup
+        self.observer = observer
         self.transport = transport
         self.reference = reference
         self.settings = settings
@@ -251,7 +275,14 @@ class Loop:
         accept_meas = in_range(*cfg.sensor_range_lpm)
         accept_ref = accept_meas
         status_every = max(1, int(round(cfg.rate_hz / cfg.status_hz)))
-        params, transport, reference, clock, writer = self.params, self.transport, self.reference, self.clock, self.writer
+        sup, transport, reference, clock, writer = self.supervisor, self.transport, self.reference, self.clock, self.writer
+        observer = self.observer
+        poll_mode = getattr(transport, "poll_mode", None)
+        supply_bar = getattr(transport, "supply_bar", None)
+        lim = sup.params.limits
+        alarms = Alarms(cfg.alarms, float(lim.duty_min_pct[0]), float(lim.duty_max_pct[0]))
+        word_index = {w: i for i, w in enumerate(control.MODES)}
+        iae = 0.0
         pc = time.perf_counter
         safe = cfg.safe_duty_pct
         preview = getattr(reference, "preview_s", 0.0) > 0
@@ -263,6 +294,7 @@ class Loop:
         meas = math.nan  # newest accepted measurement
         ref_in = 0.0
         duty = safe
+        ff = fb = 0.0
         steps = overruns = 0
 
         gc.collect()
@@ -302,6 +334,13 @@ class Loop:
                 r_ff = reference.ahead(t, accept_ref) if preview else None
                 ref_ff = ref if r_ff is None else min(max(r_ff, 0.0), cfg.flow_max_lpm)
 
+                if poll_mode is not None:
+                    w, bad = poll_mode()
+                    if w is not None and not sup.request(w):
+                        bad += 1
+                    if bad:
+                        faults.add("bad_mode", t, bad)
+
                 # 3. watchdog
                 if meas_dog.stale(t):
                     if not stale:
@@ -310,18 +349,16 @@ class Loop:
                         stale = True
                     state = SAFE
                 elif fresh and state != RUNNING:
-                    ctrl = (control.init(params, meas, duty) if ctrl is None
-                            else control.resume(params, ctrl, meas, duty))
+                    ctrl = sup.init(meas, duty) if ctrl is None else sup.resume(ctrl, meas, duty)
                     state, stale = RUNNING, False
 
-                # 4. law or safe duty
+                # 4. law (switching, fallback) or safe duty
                 if state == RUNNING:
-                    ctrl, cmd = control.step(params, ctrl, np.array([ref]), np.array([meas]), period,
-                                             np.array([ref_ff]))
-                    duty, ff, fb = float(cmd.duty_pct[0]), float(cmd.ff_pct[0]), float(cmd.fb_pct[0])
-                    if not math.isfinite(duty):  # never command what the law could not compute
-                        faults.add("bad_command", t)
+                    ctrl, cmd = sup.step(ctrl, ref, meas, period, ref_ff, t, faults)
+                    if cmd is None:  # no law could compute a duty: the fault state commands the safe duty
                         state, ctrl = FAULT, None
+                    else:
+                        duty, ff, fb = float(cmd.duty_pct[0]), float(cmd.ff_pct[0]), float(cmd.fb_pct[0])
                 if state != RUNNING:
                     duty, ff, fb = safe, safe, 0.0
 
@@ -330,28 +367,45 @@ class Loop:
                 err = ref - meas
                 if state == RUNNING:
                     transport.publish_error(t, err)
+                    iae += abs(err) * period / 60.0
+                alarms.step(t, state == RUNNING, duty, err, sup.mismatch_lpm,
+                            supply_bar() if supply_bar is not None else None)
                 if steps % status_every == 0:
                     i0 = max(0, cols.n - status_every)
-                    transport.publish_status(t, {
+                    status = {
                         "state": STATES[state],
+                        "controller": sup.word,
+                        "ref_lpm": ref,
+                        "flow_lpm": meas if meas == meas else None,
+                        "duty_pct": duty,
+                        "error_lpm": err if err == err else None,
+                        "iae": iae,
                         "steps": steps,
                         "overruns": overruns,
                         "lateness_us_max": float(cols.a["lateness_s"][i0:cols.n].max(initial=0.0)) * 1e6,
                         "compute_us_max": float(cols.a["compute_s"][i0:cols.n].max(initial=0.0)) * 1e6,
                         "faults": faults.counts(),
-                    })
+                        "alarms": alarms.active(),
+                        "alarm_counts": alarms.counts(),
+                    }
+                    transport.publish_status(t, status)
+                    if observer is not None:
+                        observer(t, status)
                 i = cols.n
                 if i == len(cols.state):
                     cols.grow()
                 a = cols.a
                 age_ms = meas_dog.age(t) * 1e3
                 a["t_s"][i], a["ref_lpm"][i], a["flow_lpm"][i] = t, ref, meas
-                a["duty_pct"][i], a["ff_duty_pct"][i], a["fb_duty_pct"][i] = duty, ff, fb
+                limit = duty - ff - fb
+                a["duty_pct"][i], a["ff_duty_pct"][i], a["fb_duty_pct"][i], a["limit_duty_pct"][i] = duty, ff, fb, limit
                 a["meas_age_ms"][i], a["lateness_s"][i] = age_ms, now - deadline
                 cols.state[i] = state
+                cols.word[i] = word_index[sup.word]
                 cols.n = i + 1
                 if writer is not None:
-                    writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], age_ms))
+                    writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word,
+                                  limit, age_ms))
                 a["compute_s"][i] = pc() - c0
                 steps += 1
 
@@ -373,4 +427,4 @@ class Loop:
             if gc_was_enabled:
                 gc.enable()
             gc.unfreeze()
-        return LoopResult(cols.trimmed(), faults, steps, overruns, cfg)
+        return LoopResult(cols.trimmed(), faults, steps, overruns, cfg, alarms)

@@ -1,4 +1,9 @@
-"""The run summary of DESIGN.md (``S.json``) and the run plot.
+"""The run summary of DESIGN.md (``S.json``), the run plot and the run report.
+
+:class:`RunResult` is a finished run: ``summary()`` computes, ``plot()``
+returns the figure (:func:`run_plot`, which draws into given axes or a new
+figure and never switches matplotlib's backend), ``write_report(DIR)``
+writes Markdown and PNG.
 
 Tracking figures cover the steps in the running state; ``steady_mae_lpm``
 the running steps where the reference has not changed for at least 100 ms;
@@ -8,8 +13,12 @@ the running steps where the reference has not changed for at least 100 ms;
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from models.report import write_report
 
 from .loop import LoopResult
 from .watchdog import RUNNING
@@ -63,6 +72,7 @@ def summary(result: LoopResult, controller: str, plant: str) -> dict:
         "compute_us": _pct_us(c["compute_s"]),
         "tracking": tracking(c["t_s"], c["ref_lpm"], c["flow_lpm"], c["state"] == RUNNING),
         "faults": result.faults.to_list(),
+        "alarms": result.alarms.to_list() if result.alarms is not None else [],
     }
 
 
@@ -82,39 +92,116 @@ def summary_text(s: dict) -> str:
         f"IAE {f(tr['iae'], '.4f')} L, steady MAE {f(tr['steady_mae_lpm'], '.3f')} L/min",
         "faults: " + (", ".join(f"{x['kind']} x{x['count']} (first at {x['first_s']:.3f} s)" for x in s["faults"])
                       or "none"),
+        "alarms: " + (", ".join(f"{x['kind']} x{x['count']} (first at {x['first_s']:.3f} s)"
+                                for x in s.get("alarms", [])) or "none"),
     ]
     return "\n".join(lines)
 
 
-def run_plot(columns: dict, path: str, title: str = "") -> None:
-    """Reference and measured flow, duty (with its feedforward part) and error against time, to PNG."""
-    import matplotlib
+def run_plot(columns: dict, ax=None, title: str = ""):
+    """Reference and flow, the duty and its split, and the error against time; returns the figure.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Parameters
+    ----------
+    columns : dict
+        A run's columns (:attr:`controller.loop.LoopResult.columns`, or a run
+        recording read back): ``t_s, ref_lpm, flow_lpm, duty_pct, ff_duty_pct,
+        fb_duty_pct, state``; ``limit_duty_pct`` and ``controller`` when present.
+    ax : sequence of three Axes, optional
+        Where to draw (flow, duty, error); a new figure when None.
+    title : str
 
-    t = columns["t_s"]
-    run = columns["state"] == RUNNING
-    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    The error axis is symmetric-log, linear within ±1 L/min: the steady error
+    of a few tenths of a L/min reads as well as the ±60 L/min of a breath's
+    edges. Grey spans: not running (safe or fault); dotted lines: a switch of
+    controller, labelled with the word taking over.
+    """
+    if ax is None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(11, 9), layout="constrained")
+        ax = fig.subplots(3, 1, sharex=True)
+    else:
+        fig = ax[0].figure
+    t = np.asarray(columns["t_s"])
+    state = np.asarray(columns["state"])
+    run = state == RUNNING if state.dtype.kind in "iu" else state == "running"
     ax[0].plot(t, columns["ref_lpm"], lw=1.2, label="reference")
     ax[0].plot(t, columns["flow_lpm"], lw=0.7, label="measured flow")
     ax[0].set_ylabel("flow (L/min)")
-    ax[0].legend(loc="upper right")
-    ax[1].plot(t, columns["duty_pct"], lw=0.8, label="duty")
-    ax[1].plot(t, columns["ff_duty_pct"], lw=0.6, ls="--", label="feedforward part")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].plot(t, columns["duty_pct"], lw=0.9, color="k", label="duty applied")
+    ax[1].plot(t, columns["ff_duty_pct"], lw=0.7, ls="--", label="feedforward")
+    ax[1].plot(t, columns["fb_duty_pct"], lw=0.7, label="feedback law")
+    if "limit_duty_pct" in columns:
+        ax[1].plot(t, columns["limit_duty_pct"], lw=0.7, label="rate limit and clamp")
+    ax[1].axhline(0, color="0.5", lw=0.4)
     ax[1].set_ylabel("duty (%)")
-    ax[1].legend(loc="upper right")
-    err = np.where(run, columns["ref_lpm"] - columns["flow_lpm"], np.nan)
-    ax[2].plot(t, err, lw=0.6, color="C3")
+    ax[1].legend(loc="upper right", fontsize=8, ncol=2)
+    err = np.where(run, np.asarray(columns["ref_lpm"]) - np.asarray(columns["flow_lpm"]), np.nan)
+    ax[2].plot(t, err, lw=0.5, color="C3")
     ax[2].axhline(0, color="k", lw=0.5)
-    ax[2].set_ylabel("error (L/min)")
+    ax[2].set_yscale("symlog", linthresh=1.0)
+    steady = run & steady_mask(t, np.asarray(columns["ref_lpm"], dtype=float))
+    if steady.any():
+        mae = float(np.mean(np.abs(err[steady])))
+        ax[2].set_title(f"steady MAE {mae:.3f} L/min (linear within ±1 L/min)", fontsize=9, loc="left")
+    ax[2].set_ylabel("reference - flow (L/min)")
     ax[2].set_xlabel("time (s)")
     if (~run).any():
         for a in ax:
-            a.fill_between(t, 0, 1, where=~run, transform=a.get_xaxis_transform(), color="0.85", lw=0,
-                           label="safe/fault")
+            a.fill_between(t, 0, 1, where=~run, transform=a.get_xaxis_transform(), color="0.85", lw=0)
+    if "controller" in columns:
+        words = np.asarray(columns["controller"])
+        for i in np.flatnonzero(words[1:] != words[:-1]) + 1:
+            for a in ax:
+                a.axvline(t[i], color="0.3", ls=":", lw=0.8)
+            ax[0].annotate(str(words[i]), (t[i], 1.0), xycoords=("data", "axes fraction"), fontsize=8,
+                           va="top", ha="left")
     if title:
         ax[0].set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+@dataclass
+class RunResult:
+    """A finished run with what names it: ``.summary()``, ``.plot()``, ``.write_report(DIR)``."""
+
+    loop: LoopResult
+    controller: str
+    plant: str
+
+    def summary(self) -> dict:
+        return summary(self.loop, self.controller, self.plant)
+
+    def plot(self, ax=None):
+        return run_plot(self.loop.columns, ax, title=f"{self.controller} on {self.plant}")
+
+    def write_report(self, folder) -> Path:
+        """``folder/report.md``: the summary's figures, faults and alarms, and the run plot."""
+        s = self.summary()
+        tr, la, co = s["tracking"], s["lateness_us"], s["compute_us"]
+
+        def f(v, fmt=".4g"):
+            return "-" if v is None else format(v, fmt)
+
+        words = list(dict.fromkeys(self.loop.columns["controller"]))
+        table = "\n".join([
+            "| figure | value |", "| --- | --- |",
+            f"| controller (in force over the run) | {' -> '.join(words) or s['controller']} |",
+            f"| plant | {s['plant']} |",
+            f"| steps, achieved rate | {s['steps']}, {f(s['rate_hz'], '.1f')} Hz |",
+            f"| overruns | {s['overruns']} |",
+            f"| lateness p50 / p99 / max | {f(la['p50'])} / {f(la['p99'])} / {f(la['max'])} us |",
+            f"| compute p50 / p99 / max | {f(co['p50'])} / {f(co['p99'])} / {f(co['max'])} us |",
+            f"| MAE, RMSE | {f(tr['mae_lpm'])}, {f(tr['rmse_lpm'])} L/min |",
+            f"| IAE | {f(tr['iae'])} L |",
+            f"| steady MAE (reference constant >= 100 ms) | {f(tr['steady_mae_lpm'])} L/min |",
+        ])
+
+        def events(items):
+            return "\n".join(f"- `{x['kind']}`: {x['count']} x, first at {x['first_s']:.3f} s" for x in items) or "none"
+
+        blocks = [table, "## Faults", events(s["faults"]), "## Alarms", events(s["alarms"]), "## The run", "{fig:run}",
+                  "Duty split: duty = feedforward + feedback law + rate limit and clamp. Error axis symmetric-log."]
+        return write_report(folder, f"Run: {self.controller} on {self.plant}", blocks, {"run": self.plot()})

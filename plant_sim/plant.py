@@ -335,6 +335,31 @@ class BatchPlant:
     def __len__(self) -> int:
         return len(self.params)
 
+    def retune(self, index: int, **changes) -> None:
+        """Change settings of plant ``index`` while it runs: from its next step on.
+
+        ``changes`` are :class:`PlantParams` fields or effect words (e.g.
+        ``supply_bar=0.3``: the supply fails, choked flow falls with the
+        absolute upstream pressure). The state carries over unchanged, so a
+        change acts as the physical change would: at once on the flow, through
+        the valve's lag and delay on the measurement. The model and a delay
+        longer than the delay line the plant was built with cannot change.
+        """
+        if "model" in changes:
+            raise InputError("plant: the model of a running plant cannot change")
+        try:
+            params = self.params[index].replace(**changes)
+        except TypeError:
+            bad = sorted(set(changes) - {f.name for f in dataclasses.fields(PlantParams)})
+            raise InputError(f"plant: unknown setting {', '.join(bad)}") from None
+        row = _pack(params, self.rate_hz)
+        n_del = int(row[K.DELAY_N]) + (row[K.DELAY_F] > 0)
+        if n_del >= self._L:
+            raise InputError(f"plant: transport_delay {params.transport_delay:g} s is longer than the running "
+                             "plant's delay line")
+        self.params[index] = params
+        self._P[index] = row
+
     def init(self, duty0_pct: float | np.ndarray) -> PlantState:
         """Plants at rest at ``duty0_pct``: operators by Eq. (3), lag and delay line settled, coil at ambient."""
         B = len(self)
@@ -407,6 +432,11 @@ class Plant:
         self.seed = int(seed)
         self._batch = BatchPlant([params], rate_hz, [seed])
         self._duty = np.empty((1, 1))
+
+    def retune(self, **changes) -> None:
+        """Change settings while the valve runs (see :meth:`BatchPlant.retune`)."""
+        self._batch.retune(0, **changes)
+        self.params = self._batch.params[0]
 
     def init(self, duty0_pct: float) -> PlantState:
         """The valve at rest at ``duty0_pct`` (see :meth:`BatchPlant.init`)."""

@@ -231,9 +231,14 @@ def test_duty_split_adds_up_and_respects_the_limits():
     for mode in control.MODES:
         _, cmds = closed_loop(make(mode), ref)
         duty = np.array([c.duty_pct[0] for c in cmds])
-        np.testing.assert_allclose([c.ff_pct[0] + c.fb_pct[0] for c in cmds], duty, atol=1e-9)
+        np.testing.assert_allclose([c.ff_pct[0] + c.fb_pct[0] + c.limit_pct[0] for c in cmds], duty, atol=1e-9)
         assert duty.min() >= 0 and duty.max() <= 100
         assert np.max(np.abs(np.diff(duty))) <= 5000.0 * DT + 1e-9
+        # fb is the law's own output: where neither limit acts, the limit part is zero
+        step = np.abs(np.diff(duty, prepend=0.0))
+        free = (duty > 0) & (duty < 100) & (step < 5000.0 * DT - 1e-6)
+        assert free.sum() > 100
+        np.testing.assert_allclose([c.limit_pct[0] for c, f in zip(cmds, free) if f], 0.0, atol=1e-9)
 
 
 def test_transfer_is_bumpless():

@@ -151,10 +151,12 @@ def test_record_is_a_recording_with_one_row_per_step_and_summary_has_the_design_
     rec = read_recording(path)
     assert len(rec) == res.steps
     header = path.read_text().splitlines()[0].split(",")
-    assert header[:7] == ["t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state"]
+    assert header[:8] == ["t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "state",
+                          "controller"]
+    assert set(rec.text_columns["controller"]) == {"ff+pid"}
     s = json.loads(json.dumps(summary(res, "ff+pid", "sim")))
     assert set(s) == {"controller", "plant", "rate_hz", "steps", "overruns", "lateness_us", "compute_us",
-                      "tracking", "faults"}
+                      "tracking", "faults", "alarms"}
     assert set(s["lateness_us"]) == set(s["compute_us"]) == {"p50", "p99", "max"}
     assert set(s["tracking"]) == {"mae_lpm", "rmse_lpm", "iae", "steady_mae_lpm"}
 

@@ -17,7 +17,7 @@ def test_short_run_writes_summary_record_and_plot(tmp_path, capsys):
     assert s["controller"] == "ff+pid" and s["plant"].startswith("sim")
     assert s["steps"] + s["overruns"] == 300
     lines = out["csv"].read_text().splitlines()
-    assert lines[0] == "t_s,ref_lpm,flow_lpm,duty_pct,ff_duty_pct,fb_duty_pct,state,meas_age_ms"
+    assert lines[0] == "t_s,ref_lpm,flow_lpm,duty_pct,ff_duty_pct,fb_duty_pct,state,controller,limit_duty_pct,meas_age_ms"
     assert len(lines) == 1 + s["steps"]
     assert out["png"].stat().st_size > 0
     assert "tracking" in capsys.readouterr().out

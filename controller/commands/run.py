@@ -8,15 +8,37 @@ def add_arguments(p) -> None:
     p.add_argument("--config", default="config/run.toml", metavar="RUN.toml", help="run configuration (default %(default)s)")
     p.add_argument("--plant", choices=("sim", "zenoh"), default=None,
                    help="sim: the embedded simulated valve; zenoh: a valve (or valve-node) over Zenoh")
-    p.add_argument("--controller", choices=("ff", "pid", "ff+pid", "ff+kf"), default=None)
-    p.add_argument("--reference", choices=("profile", "zenoh"), default=None,
-                   help="profile: the configured breath profile; zenoh: follow .../ref/flow")
+    p.add_argument("--controller", choices=("ff", "pid", "ff+pid", "ff+kf"), default=None,
+                   help="the controller at the start (.../ctrl/mode switches it while running)")
+    p.add_argument("--reference", default=None, metavar="profile|zenoh|FILE.csv",
+                   help="profile: the configured breath profile; zenoh: follow .../ref/flow; "
+                        "FILE.csv: replay a recorded reference (t_s, ref_lpm)")
     p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", default=None, metavar="EP", help="Zenoh endpoint to connect to (repeatable)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="run length, s (0: until interrupted)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="run length, s (0: until interrupted; default: the configuration's, or a FILE reference's span)")
     p.add_argument("--record", default=None, metavar="RUN.csv", help="one row per step, flushed as written")
     p.add_argument("--json", default=None, metavar="S.json", help="run summary (DESIGN.md)")
-    p.add_argument("--plot", default=None, metavar="RUN.png", help="reference, flow, duty and error against time")
+    p.add_argument("--plot", default=None, metavar="RUN.png", help="reference, flow, duty split and error against time")
+    p.add_argument("--report", default=None, metavar="DIR", help="Markdown report with the summary and the run plot")
+    p.add_argument("--inject", action="append", default=[], metavar="NAME=VALUE@T",
+                   help="simulated valve only: set a plant setting or effect word to VALUE at T s, e.g. "
+                        "supply_bar=0.3@9.2 (repeatable)")
+
+
+def parse_inject(text: str) -> tuple[float, str, float]:
+    """``NAME=VALUE@T`` -> ``(t_s, name, value)``; bad text is an InputError naming it."""
+    from models.recording import InputError
+
+    try:
+        setting, at = text.rsplit("@", 1)
+        name, value = setting.split("=", 1)
+        t_s, v = float(at), float(value)
+    except ValueError:
+        raise InputError(f"--inject {text}: expected NAME=VALUE@T (e.g. supply_bar=0.3@9.2)") from None
+    if not (t_s >= 0 and t_s == t_s) or v != v:
+        raise InputError(f"--inject {text}: T must be a time >= 0 s and VALUE a number")
+    return t_s, name.strip(), v
 
 
 def run(args) -> int:
@@ -25,9 +47,9 @@ def run(args) -> int:
     from models.model import load_model, write_json_atomic
     from models.recording import InputError, RecordingWriter
 
-    from controller.config import controller_params, load_run_config, preview_s
+    from controller.config import load_run_config, preview_s, supervisor
     from controller.loop import RECORD_COLUMNS, Loop, ProfileReference
-    from controller.run_summary import run_plot, summary, summary_text
+    from controller.run_summary import RunResult, summary_text
 
     cfg = load_run_config(args.config)
     top = cfg[""]
@@ -37,10 +59,20 @@ def run(args) -> int:
     duration = top["duration_s"] if args.duration is None else args.duration
     if duration < 0:
         raise InputError(f"--duration: must be >= 0, got {duration}")
+    injections = [parse_inject(x) for x in args.inject]
+    if injections and plant_kind != "sim":
+        raise InputError("--inject: only the simulated valve (--plant sim) can be changed mid-run")
     settings = cfg.loop
     model = load_model(cfg.resolve(top["model"]))
-    preview = preview_s(cfg, ref_kind)
-    params = controller_params(cfg, word, model)
+    recorded = None
+    if ref_kind not in ("profile", "zenoh"):
+        from controller.reference import RecordedReference
+
+        recorded = RecordedReference(ref_kind)
+        if args.duration is None:
+            duration = recorded.span_s
+    preview = preview_s(cfg, "zenoh" if ref_kind == "zenoh" else "profile")
+    sup = supervisor(cfg, word, model)
 
     session = None
     if plant_kind == "zenoh" or ref_kind == "zenoh":
@@ -53,14 +85,24 @@ def run(args) -> int:
         from plant_sim.plant import Plant, load_plant
 
         plant_params = load_plant(cfg.resolve(top["plant_config"]), effects=cfg["effects"])
-        transport = SimTransport(Plant(plant_params, settings.rate_hz, seed=top["seed"]), settings.safe_duty_pct)
+        for _, name, value in injections:  # a bad name or value is bad input now, not mid-run
+            try:
+                plant_params.replace(**{name: value})
+            except TypeError:
+                raise InputError(f"--inject {name}: not a plant setting or effect word") from None
+        transport = SimTransport(Plant(plant_params, settings.rate_hz, seed=top["seed"]), settings.safe_duty_pct,
+                                 injections)
         if session is not None:
             transport = EmbeddedValve(transport, zt)
         plant_label = "sim " + ",".join(f"{k}={v:g}" for k, v in plant_params.effects.items())
     else:
         transport = zt
         plant_label = f"zenoh vent/valve/{cfg['zenoh']['id']}"
-    if ref_kind == "profile":
+    if ref_kind == "zenoh":
+        reference = zt.reference()
+    elif recorded is not None:
+        reference = ProfileReference(recorded, preview)
+    else:
         from plant_sim.protocols import BreathProfile
 
         try:
@@ -68,13 +110,19 @@ def run(args) -> int:
         except (TypeError, ValueError) as exc:
             raise InputError(f"{cfg.path}: section 'profile': {exc}") from None
         reference = ProfileReference(profile.value, preview)
-    else:
-        reference = zt.reference()
 
     writer = RecordingWriter(args.record, RECORD_COLUMNS) if args.record else None
-    loop = Loop(params, transport, reference, settings, writer=writer)
+    observer = None
     if sys.stderr.isatty():
-        sys.stderr.write(f"running {word} on {plant_label} for {duration:g} s...\n")
+        sys.stderr.write(f"running {word} on {plant_label} for "
+                         + (f"{duration:g} s" if duration > 0 else "until interrupted") + " (Ctrl-C ends it)\n")
+
+        def observer(t_s: float, st: dict) -> None:
+            alarms = ",".join(st["alarms"]) or "-"
+            sys.stderr.write(f"\r{t_s:8.1f} s  {st['state']:<7} {st['controller']:<6}  IAE {st['iae']:.4f} L  "
+                             f"overruns {st['overruns']}  alarms {alarms}   ")
+            sys.stderr.flush()
+    loop = Loop(sup, transport, reference, settings, writer=writer, observer=observer)
     # SIGTERM or Ctrl-C end the run at the next step, with its summary.
     stopping: list[bool] = []
     previous = {sig: signal.signal(sig, lambda *_: stopping.append(True)) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -83,16 +131,21 @@ def run(args) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if observer is not None:
+            sys.stderr.write("\n")
         if writer is not None:
             writer.close()
         if session is not None:
             zt.close()
             session.close()
-    s = summary(result, word, plant_label)
+    res = RunResult(result, word, plant_label)
+    s = res.summary()
     print(summary_text(s))
     if args.json:
         write_json_atomic(args.json, s)
     if args.plot:
-        run_plot(result.columns, args.plot, title=f"{word} on {plant_label}")
+        res.plot().savefig(args.plot, dpi=110)
         print(f"plot -> {args.plot}")
+    if args.report:
+        print(f"report -> {res.write_report(args.report)}")
     return 0

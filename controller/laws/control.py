@@ -20,9 +20,12 @@ the inverse of the feedforward's model, of any invertible kind
 actually applied.
 
 Every duty passes the same rate limit and [min, max] clamp
-(:mod:`controller.laws.limits`). ``ff_pct`` in :class:`Command` is the
-feedforward of ``ref`` alone, ``fb_pct`` the rest of the applied duty, so
-``duty = ff + fb`` always.
+(:mod:`controller.laws.limits`). :class:`Command` splits the applied duty
+into ``ff_pct``, the feedforward of ``r`` alone; ``fb_pct``, the feedback
+law's own output (the PID's ``kp e + I + D``; for ``ff+kf`` the duty the
+bias correction adds, ``invPI(F r - bias_hat) - invPI(F r)``); and
+``limit_pct``, what the rate limit and the clamp took away, so
+``duty = ff + fb + limit`` always.
 """
 from __future__ import annotations
 
@@ -88,11 +91,12 @@ class ControllerState(NamedTuple):
 
 
 class Command(NamedTuple):
-    """Applied duty and its split, %, arrays of shape (B,)."""
+    """Applied duty and its split (``duty = ff + fb + limit``), %, arrays of shape (B,)."""
 
     duty_pct: np.ndarray
     ff_pct: np.ndarray
-    fb_pct: np.ndarray
+    fb_pct: np.ndarray  # the feedback law's own output
+    limit_pct: np.ndarray  # what the rate limit and the clamp changed
 
 
 def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:
@@ -117,7 +121,8 @@ def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm:
     fwd, pst, kst, lst = s.forward, s.pid, s.kf, s.lead
     if p.mode == "pid":
         pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, 0.0, s.duty_pct, p.limits)
-        return s._replace(pid=pst, duty_pct=duty), Command(duty, np.zeros_like(duty), duty)
+        fb = pid.output(p.pid, s.pid, pst, ref_lpm, meas_lpm)
+        return s._replace(pid=pst, duty_pct=duty), Command(duty, np.zeros_like(duty), fb, duty - fb)
 
     r = ref_lpm if ref_ff_lpm is None else ref_ff_lpm
     if lst is not None:
@@ -128,17 +133,20 @@ def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm:
     ff = ffw.invert(p.forward, fwd, r)
     if p.mode == "ff":
         duty = limits.apply(p.limits, ff, s.duty_pct, dt_s)
+        fb = np.zeros_like(duty)
     elif p.mode == "ff+pid":
         pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, ff, s.duty_pct, p.limits)
+        fb = pid.output(p.pid, s.pid, pst, ref_lpm, meas_lpm)
     else:  # ff+kf
         kst = kalman.update(p.kf, kst, meas_lpm)
         # A reference of no flow closes the valve whatever the bias estimate says.
         u = np.where(r > 0.0, ffw.invert(p.forward, fwd, r - kst.bias_lpm), ff)
         duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
+        fb = u - ff
     fwd, model = ffw.step(p.forward, fwd, duty)
     if kst is not None:
         kst = kalman.push(kst, model)
-    return ControllerState(fwd, pst, kst, duty, lst), Command(duty, ff, duty - ff)
+    return ControllerState(fwd, pst, kst, duty, lst), Command(duty, ff, fb, duty - ff - fb)
 
 
 def resume(p: ControllerParams, s: ControllerState, meas_lpm, duty_applied_pct) -> ControllerState:

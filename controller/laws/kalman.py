@@ -115,11 +115,20 @@ def init(p: KFParams, flow0_lpm, model0_lpm=None, bias0_lpm=0.0) -> KFState:
     return KFState(flow, np.broadcast_to(np.asarray(bias0_lpm, dtype=np.float64), b).copy(), hist, 0)
 
 
+def delayed_model(p: KFParams, s: KFState) -> np.ndarray:
+    """``m[k-1-d]``: the model flow of the duty applied one period plus the transport delay ago, L/min."""
+    n = s.model_hist_lpm.shape[1]
+    return s.model_hist_lpm[np.arange(len(p.a)), (s.pos - p.delay_steps) % n]
+
+
+def predict(p: KFParams, s: KFState) -> np.ndarray:
+    """The flow predicted for this step from ``m[k-1-d]``, L/min (the measurement minus it is the innovation)."""
+    return p.a * s.flow_lpm + (1.0 - p.a) * (delayed_model(p, s) + s.bias_lpm)
+
+
 def update(p: KFParams, s: KFState, z_lpm: np.ndarray) -> KFState:
     """Predict with ``m[k-1-d]`` then correct with the measurement ``z[k]``."""
-    n = s.model_hist_lpm.shape[1]
-    m = s.model_hist_lpm[np.arange(len(p.a)), (s.pos - p.delay_steps) % n]
-    flow_pred = p.a * s.flow_lpm + (1.0 - p.a) * (m + s.bias_lpm)
+    flow_pred = predict(p, s)
     innov = z_lpm - flow_pred
     return KFState(flow_pred + p.k_flow * innov, s.bias_lpm + p.k_bias * innov, s.model_hist_lpm, s.pos)
 

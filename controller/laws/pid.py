@@ -93,6 +93,11 @@ def step(
     return PIDState(i, d, meas_lpm), u
 
 
+def output(p: PIDParams, s_before: PIDState, s_after: PIDState, ref_lpm, meas_lpm) -> np.ndarray:
+    """The law's own output of the step from ``s_before`` to ``s_after``: ``kp e + I + D``, % (before the limits)."""
+    return p.kp * (ref_lpm - meas_lpm) + s_before.integral_pct + s_after.deriv_pct
+
+
 def transfer(p: PIDParams, s: PIDState, ref_lpm, meas_lpm, u_bias_pct, u_applied_pct) -> PIDState:
     """Bumpless switch into this law: the integral absorbs what P, D and the bias do not give."""
     e = np.asarray(ref_lpm, dtype=np.float64) - meas_lpm

@@ -6,6 +6,10 @@ start of the period would be. The plant's rate is the loop's rate. When the
 loop missed deadlines, the valve went on in the meantime: the plant first
 steps through the missed periods with the duty it had, so simulated time
 keeps up with the loop's clock.
+
+Injections (``valvectl run --inject NAME=VALUE@T``) change a setting of the
+running valve (:meth:`plant_sim.plant.Plant.retune`) at the first command
+at or after their time, so a test can fail the gas supply mid-breath.
 """
 from __future__ import annotations
 
@@ -19,10 +23,13 @@ class SimTransport:
         Stepped at the loop rate.
     duty0_pct : float
         Duty the valve rests at before the loop starts (0 = closed).
+    injections : sequence of (float, str, float)
+        ``(t_s, setting, value)``: from ``t_s`` on, the valve's ``setting`` is ``value``.
     """
 
-    def __init__(self, plant, duty0_pct: float = 0.0):
+    def __init__(self, plant, duty0_pct: float = 0.0, injections=()):
         self.plant = plant
+        self._injections = sorted(injections, key=lambda x: x[0])
         self.state = plant.init(duty0_pct)
         self.state, out = plant.step(self.state, duty0_pct)
         self._meas = out.flow_lpm
@@ -36,7 +43,14 @@ class SimTransport:
             return None, 0
         return (v, 0) if accept(v) else (None, 1)
 
+    def supply_bar(self) -> float:
+        """The supply pressure the valve saw at its last step, bar gauge."""
+        return self.last.supply_bar
+
     def command(self, duty_pct: float, t_s: float) -> None:
+        while self._injections and self._injections[0][0] <= t_s + 1e-9:
+            _, name, value = self._injections.pop(0)
+            self.plant.retune(**{name: value})
         if self._t is not None:
             for _ in range(int(round((t_s - self._t) * self.plant.rate_hz)) - 1):  # missed periods
                 self.state, _ = self.plant.step(self.state, self._duty)

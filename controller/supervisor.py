@@ -1,0 +1,155 @@
+"""The controller word in force: runtime switching (``ctrl/mode``) and fallback.
+
+As ros2_control's controller manager does, a switch takes effect within one
+control step and a failing controller hands over to a fallback:
+
+- a requested word takes over at the next step, bumplessly
+  (:func:`controller.laws.control.transfer`): the new law starts from the
+  duty last applied, so its first duty differs from the last one by at most
+  the rate limit;
+- a law fails when its duty is not finite, or (``ff+kf``) when its Kalman
+  innovation (measured - predicted flow), low-passed over ``tau_s``, stays
+  beyond ``innovation_limit_lpm`` for ``innovation_hold_s``: the filter no
+  longer follows the valve (its flow estimate tracks the measurement, so
+  even a large model error leaves an innovation of only ``(1 - a)`` times
+  that error; an innovation beyond the bound is a filter that diverged).
+  The law then hands over to :data:`FALLBACK` (``ff+pid``) in the same
+  step, with the faults ``bad_command`` or ``innovation_diverged`` and
+  ``fallback``; if the fallback fails too, the step returns no command and
+  the loop goes to the fault state (safe duty).
+
+For the alarms (:mod:`controller.alarms`) the supervisor also reports the
+model's flow error, :attr:`Supervisor.mismatch_lpm`: the measured flow
+minus the forward model's flow passed through the valve's identified lag
+and delay (the filter's own ``a`` and ``d``), low-passed over ``tau_s``.
+It is the error the Kalman bias converges to, seen at once rather than at
+the bias's bandwidth; laws without the filter report nan.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .laws import control, kalman
+
+#: The controller a failing law hands over to: feedback on the measured flow around the feedforward.
+FALLBACK = "ff+pid"
+
+
+@dataclass(frozen=True)
+class SupervisorSettings:
+    """When a Kalman-corrected law counts as failed.
+
+    Attributes
+    ----------
+    innovation_limit_lpm : float
+        Bound on the low-passed innovation (measured - predicted flow), L/min.
+    innovation_hold_s : float
+        How long the innovation must stay beyond the bound, s.
+    tau_s : float
+        Time constant of the low-pass of the innovation and the model error, s
+        (averages the sensor noise out).
+    """
+
+    innovation_limit_lpm: float = 10.0
+    innovation_hold_s: float = 0.2
+    tau_s: float = 0.02
+
+
+class Supervisor:
+    """Steps the law of the word in force, switching and falling back as above.
+
+    Parameters
+    ----------
+    laws : dict of str to ControllerParams
+        The words this run may switch to (batch of one each); a run that
+        cannot fall back simply lacks :data:`FALLBACK`.
+    word : str
+        The word in force at the start.
+    settings : SupervisorSettings
+    """
+
+    def __init__(self, laws: dict, word: str, settings: SupervisorSettings = SupervisorSettings()):
+        if word not in laws:
+            raise ValueError(f"controller {word!r} not among {', '.join(laws)}")
+        self.laws, self.word, self.settings = dict(laws), word, settings
+        self.pending: str | None = None
+        self.mismatch_lpm = math.nan
+        self._innov_lp = 0.0
+        self._beyond_s = 0.0
+        self._model_lag = math.nan  # the model flow through the valve's lag, L/min
+
+    @classmethod
+    def fixed(cls, params: control.ControllerParams) -> "Supervisor":
+        """One word, no switching and no fallback."""
+        return cls({params.mode: params}, params.mode)
+
+    @property
+    def params(self) -> control.ControllerParams:
+        return self.laws[self.word]
+
+    def request(self, word: str) -> bool:
+        """Ask for ``word`` from the next step on; False (nothing changes) for a word this run lacks."""
+        if word not in self.laws:
+            return False
+        self.pending = word
+        return True
+
+    def init(self, meas_lpm: float, duty_pct: float) -> control.ControllerState:
+        self._reset()
+        return control.init(self.params, meas_lpm, duty_pct)
+
+    def resume(self, ctrl, meas_lpm: float, duty_pct: float) -> control.ControllerState:
+        self._reset()
+        return control.resume(self.params, ctrl, meas_lpm, duty_pct)
+
+    def _reset(self) -> None:
+        self._innov_lp, self._beyond_s, self.mismatch_lpm, self._model_lag = 0.0, 0.0, math.nan, math.nan
+
+    def _switch(self, word: str, ctrl, ref_lpm: float, meas_lpm: float):
+        old = self.params
+        self.word = word
+        self._reset()
+        if old is self.params:
+            return ctrl
+        return control.transfer(self.params, ctrl, ref_lpm, np.array([meas_lpm]))
+
+    def step(self, ctrl, ref_lpm: float, meas_lpm: float, dt_s: float, ref_ff_lpm: float, t_s: float, faults):
+        """One period of the word in force: ``(state, Command)``, or ``(state, None)`` when no law could run."""
+        if self.pending is not None:
+            ctrl = self._switch(self.pending, ctrl, ref_lpm, meas_lpm)
+            self.pending = None
+        ref, meas, ref_ff = np.array([ref_lpm]), np.array([meas_lpm]), np.array([ref_ff_lpm])
+        new, cmd = self._law_step(ctrl, ref, meas, dt_s, ref_ff, t_s, faults)
+        if cmd is not None or self.word == FALLBACK or FALLBACK not in self.laws:
+            return (new, cmd) if cmd is not None else (ctrl, None)
+        faults.add("fallback", t_s)
+        ctrl = self._switch(FALLBACK, ctrl, ref_lpm, meas_lpm)
+        new, cmd = self._law_step(ctrl, ref, meas, dt_s, ref_ff, t_s, faults)
+        return (new, cmd) if cmd is not None else (ctrl, None)
+
+    def _law_step(self, ctrl, ref, meas, dt_s, ref_ff, t_s, faults):
+        """The law's step and its health: the command, or None (with the fault counted) when it failed."""
+        p = self.params
+        predicted = kalman.predict(p.kf, ctrl.kf) if p.kf is not None else None
+        new, cmd = control.step(p, ctrl, ref, meas, dt_s, ref_ff)
+        if not math.isfinite(float(cmd.duty_pct[0])):  # never command what the law could not compute
+            faults.add("bad_command", t_s)
+            return new, None
+        if predicted is not None:
+            s = self.settings
+            z = float(meas[0])
+            g = 1.0 - math.exp(-dt_s / s.tau_s)
+            self._innov_lp += (z - float(predicted[0]) - self._innov_lp) * g
+            a, m = float(p.kf.a[0]), float(kalman.delayed_model(p.kf, ctrl.kf)[0])
+            lag = m if self._model_lag != self._model_lag else a * self._model_lag + (1.0 - a) * m
+            self._model_lag = lag
+            self.mismatch_lpm = z - lag if self.mismatch_lpm != self.mismatch_lpm else (
+                self.mismatch_lpm + (z - lag - self.mismatch_lpm) * g)
+            self._beyond_s = self._beyond_s + dt_s if abs(self._innov_lp) > s.innovation_limit_lpm else 0.0
+            if self._beyond_s >= s.innovation_hold_s - 1e-12 or not math.isfinite(self._innov_lp):
+                faults.add("innovation_diverged", t_s)
+                return new, None
+        return new, cmd
