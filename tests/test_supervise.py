@@ -12,20 +12,10 @@ from controller.config import load_run_config, preview_s, supervisor
 from controller.laws import kalman, pid
 from controller.loop import Loop, ProfileReference, SimClock
 from controller.transport.sim import SimTransport
-from models.model import load_model
 from models.recording import InputError
 from plant_sim.plant import Plant, load_plant
 from plant_sim.protocols import BreathProfile
-
-
-@pytest.fixture(scope="module")
-def cfg():
-    return load_run_config("config/run.toml")
-
-
-@pytest.fixture(scope="module")
-def model(cfg):
-    return load_model(cfg.resolve(cfg[""]["model"]))
+from tests.test_loop import cfg, model  # noqa: F401  (the run configuration and its model, as fixtures)
 
 
 def plant(cfg, seed=0, rate_hz=None, **effects):

@@ -15,6 +15,7 @@ import pytest
 
 zenoh = pytest.importorskip("zenoh")
 
+from controller.loop import RECORD_COLUMNS  # noqa: E402
 from tests.zenoh_helpers import client_session, free_port, rows, valvectl, wait_for  # noqa: E402
 
 
@@ -85,7 +86,7 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     assert faults["stale"]["count"] >= 1
     table = rows(rec)
     state = np.array([r[6] for r in table])
-    age = np.array([float(r[7]) for r in table])
+    age = np.array([float(r[RECORD_COLUMNS.index("meas_age_ms")]) for r in table])
     duty = np.array([float(r[3]) for r in table])
     last_run = np.flatnonzero(state == "running")[-1]
     assert np.all(state[last_run + 1:] == "safe")  # the valve never came back

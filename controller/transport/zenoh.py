@@ -24,7 +24,7 @@ import time
 import zenoh
 
 from .guard import SourceGuard
-from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_number
+from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_number, parse_word
 
 #: Samples Zenoh keeps per subscribed key between two polls, and the most one poll takes.
 RING = 16
@@ -184,6 +184,7 @@ class ZenohTransport:
         self.session = session
         self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s))
         self.ref_in = Inbox(session, f"{k}/ref/flow")
+        self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word)
         rt = {"priority": zenoh.Priority.REAL_TIME, "express": True, "congestion_control": zenoh.CongestionControl.DROP}
         self.cmd = _Publisher(session, f"{k}/cmd/duty", **rt)
         self.err = _Publisher(session, f"{k}/ctrl/error", express=True, congestion_control=zenoh.CongestionControl.DROP)
@@ -203,6 +204,11 @@ class ZenohTransport:
         self.meas_seq = m.seq
         return m.value, rejects
 
+    def poll_mode(self) -> tuple[str | None, int]:
+        """The newest controller word asked for on ``ctrl/mode``, and how many requests were malformed."""
+        m, bad, _ = self.mode_in.poll()
+        return (None if m is None else m.value), bad
+
     def command(self, duty_pct: float, t_s: float) -> None:
         # meas_seq: the newest measurement this command was computed from (round-trip timing).
         self.cmd.put(t_s, duty_pct, meas_seq=self.meas_seq)
@@ -217,7 +223,7 @@ class ZenohTransport:
         self.token.undeclare()
         for p in (self.cmd, self.err, self.status):
             p.undeclare()
-        for i in (self.meas_in, self.ref_in):
+        for i in (self.meas_in, self.ref_in, self.mode_in):
             i.undeclare()
 
 
@@ -242,6 +248,12 @@ class EmbeddedValve:
 
     def publish_status(self, t_s: float, status: dict) -> None:
         self.zt.publish_status(t_s, status)
+
+    def poll_mode(self) -> tuple[str | None, int]:
+        return self.zt.poll_mode()
+
+    def supply_bar(self) -> float:
+        return self.sim.supply_bar()
 
 
 class ValveNodeTransport:
