@@ -30,6 +30,7 @@ VERBS = {
     "valve-node": ("controller.commands.valve_node", "the simulated valve as a Zenoh node"),
     "sweep": ("controller.commands.sweep", "a controller tuning sweep"),
     "diagnose": ("controller.commands.diagnose", "find the physics a simulation leaves out"),
+    "monitor": ("controller.commands.monitor", "live view of a running controller over Zenoh"),
 }
 
 
