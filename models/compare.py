@@ -2,12 +2,14 @@
 
 :func:`compare_response` fits every model kind on one recording, scores each
 in-sample (as Table 1) and on a validation recording never used in fitting,
-and runs the inverse check; :func:`compare_plot` draws Fig. 3 (flow against
-duty, measured and fitted) per model with the residual against duty split by
-branch direction.
+and runs the inverse check; :func:`compare_plot` (or ``Comparison.plot()``)
+returns the figure: Fig. 3 (flow against duty, measured and fitted) per model
+with the residual against duty split by branch direction, the validation and
+the inverse checks; :func:`write_compare_report` writes it as Markdown + PNG.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -42,6 +44,8 @@ class ModelResult:
     model : FittedModel
     prediction_lpm : ndarray
         In-sample prediction, one value per recording row.
+    validation_prediction_lpm : ndarray or None
+        Prediction on the validation recording, one value per its row.
     """
 
     kind: str
@@ -50,6 +54,7 @@ class ModelResult:
     validation: Metrics | None
     model: FittedModel
     prediction_lpm: np.ndarray = field(repr=False)
+    validation_prediction_lpm: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,12 @@ class Comparison:
     validation: Recording | None
     results: dict
     inverse: InverseCheck
+    #: The Eq. (7) inverse fed the recorded flow: the duty it gives per recording row, %.
+    inverse_duty_pct: np.ndarray | None = field(default=None, repr=False)
+
+    def plot(self, ax=None):
+        """:func:`compare_plot` of this comparison; returns the figure."""
+        return compare_plot(self, ax)
 
     def to_json(self) -> dict:
         models = {}
@@ -154,9 +165,10 @@ def compare_response(
         model = fit_recording(kind, rec)
         pred, _ = model.predict(rec.duty_pct)
         val = evaluate(model, validate.duty_pct, validate.flow_lpm) if validate is not None else None
-        results[kind] = ModelResult(kind, model.meta["fit_s"], metrics(rec.flow_lpm, pred), val, model, pred)
+        val_pred = model.predict(validate.duty_pct)[0] if validate is not None else None
+        results[kind] = ModelResult(kind, model.meta["fit_s"], metrics(rec.flow_lpm, pred), val, model, pred, val_pred)
     pi = results["pi"].model if "pi" in results else fit_recording("pi", rec)
-    return Comparison(rec, validate, results, inverse_check(pi, rec))
+    return Comparison(rec, validate, results, inverse_check(pi, rec), pi.inverse_predict(rec.flow_lpm)[0])
 
 
 def branch_direction(duty_pct: np.ndarray) -> np.ndarray:
@@ -169,36 +181,91 @@ def branch_direction(duty_pct: np.ndarray) -> np.ndarray:
     return np.where(direction[idx] != 0, direction[idx], 0)
 
 
-def compare_plot(comparison: Comparison, path: str) -> None:
-    """Fig. 3 per model (flow vs duty, measured and fitted) and residual vs duty by branch."""
-    import matplotlib
+def compare_plot(comparison: Comparison, ax=None):
+    """Fig. 3 per model, its residual by branch, its validation, and the inverse checks; returns the figure.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    One row per model: flow against duty, measured and fitted (in-sample
+    figures in the title); the residual against duty split by branch
+    direction; with a validation recording, the same model on it (never
+    fitted there). A last row: the Eq. (7) inverse fed the recorded flow
+    against the recorded duty (what a feedforward gets wrong on this valve),
+    and the duty errors of the three inverse checks.
 
+    ``ax``: an array of axes of shape (models + 1, 2 or 3); a new figure when None.
+    """
     rec = comparison.recording
     kinds = list(comparison.results)
-    fig, axes = plt.subplots(len(kinds), 2, figsize=(12, 3.2 * len(kinds)), squeeze=False)
+    ncol = 3 if comparison.validation is not None else 2
+    if ax is None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6 * ncol, 3.2 * (len(kinds) + 1)), layout="constrained")
+        ax = fig.subplots(len(kinds) + 1, ncol, squeeze=False)
+    else:
+        fig = ax[0][0].figure
     direction = branch_direction(rec.duty_pct)
     step = max(1, len(rec) // 20000)
-    for row, kind in zip(axes, kinds):
+    for row, kind in zip(ax, kinds):
         res = comparison.results[kind]
-        ax = row[0]
-        ax.plot(rec.duty_pct[::step], rec.flow_lpm[::step], color="tab:orange", lw=0.6, label="measured $Q_m$")
-        ax.plot(rec.duty_pct[::step], res.prediction_lpm[::step], color="tab:blue", lw=0.6, label=r"fitted $\hat{Q}$")
-        ax.set_title(f"{kind}: MAE {res.in_sample.mae:.2f} L/min, r {res.in_sample.r:.4f}")
-        ax.set_xlabel("duty cycle (%)")
-        ax.set_ylabel("flow (L/min)")
-        ax.legend(loc="upper left", fontsize=8)
-        ax = row[1]
+        a = row[0]
+        a.plot(rec.duty_pct[::step], rec.flow_lpm[::step], color="tab:orange", lw=0.6, label="measured $Q_m$")
+        a.plot(rec.duty_pct[::step], res.prediction_lpm[::step], color="tab:blue", lw=0.6, label=r"fitted $\hat{Q}$")
+        a.set_title(f"{kind}: MAE {res.in_sample.mae:.2f} L/min, r {res.in_sample.r:.4f} (in-sample)", fontsize=9)
+        a.set_xlabel("duty cycle (%)")
+        a.set_ylabel("flow (L/min)")
+        a.legend(loc="upper left", fontsize=8)
+        a = row[1]
         resid = res.prediction_lpm - rec.flow_lpm
         for sign, color, label in ((1, "tab:green", "ascending"), (-1, "tab:red", "descending")):
             sel = (direction == sign)
-            ax.plot(rec.duty_pct[sel][::step], resid[sel][::step], ".", ms=1, color=color, label=label)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set_xlabel("duty cycle (%)")
-        ax.set_ylabel("fitted - measured (L/min)")
-        ax.legend(loc="upper left", fontsize=8, markerscale=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+            a.plot(rec.duty_pct[sel][::step], resid[sel][::step], ".", ms=1, color=color, label=label)
+        a.axhline(0, color="k", lw=0.5)
+        a.set_xlabel("duty cycle (%)")
+        a.set_ylabel("fitted - measured (L/min)")
+        a.legend(loc="upper left", fontsize=8, markerscale=8)
+        if ncol == 3:
+            val, a = comparison.validation, row[2]
+            vs = max(1, len(val) // 20000)
+            a.plot(val.duty_pct[::vs], val.flow_lpm[::vs], color="tab:orange", lw=0.6, label="measured")
+            if res.validation_prediction_lpm is not None:
+                a.plot(val.duty_pct[::vs], res.validation_prediction_lpm[::vs], color="tab:purple", lw=0.6,
+                       label="predicted")
+            v = res.validation
+            a.set_title(f"validation: MAE {v.mae:.2f} L/min, r {v.r:.4f} (never fitted)", fontsize=9)
+            a.set_xlabel("duty cycle (%)")
+            a.set_ylabel("flow (L/min)")
+            a.legend(loc="upper left", fontsize=8)
+    inv, row = comparison.inverse, ax[len(kinds)]
+    a = row[0]
+    if comparison.inverse_duty_pct is not None:
+        a.plot(rec.t_s[::step], rec.duty_pct[::step], lw=0.7, color="k", label="recorded duty")
+        a.plot(rec.t_s[::step], comparison.inverse_duty_pct[::step], lw=0.6, color="tab:blue",
+               label="Eq. (7) inverse of the measured flow")
+        a.legend(loc="upper right", fontsize=8)
+    a.set_title(f"inverse on measured flow: duty MAE {inv.on_measured_flow.mae:.2f} %", fontsize=9)
+    a.set_xlabel("time (s)")
+    a.set_ylabel("duty (%)")
+    a = row[1]
+    checks = {"Eq. (7) round trip": inv.closed_form, f"direct fit n={INVERSE_N}": inv.direct_fit,
+              "on measured flow": inv.on_measured_flow}
+    x = np.arange(len(checks))
+    a.bar(x - 0.2, [m.mae for m in checks.values()], 0.4, label="MAE")
+    a.bar(x + 0.2, [m.rmse for m in checks.values()], 0.4, label="RMSE")
+    a.set_xticks(x, list(checks), fontsize=8)
+    a.set_ylabel("duty error (%)")
+    a.set_title("inverse PI checks (paper §3)", fontsize=9)
+    a.legend(fontsize=8)
+    for extra in row[2:]:
+        extra.set_visible(False)
+    return fig
+
+
+def write_compare_report(comparison: Comparison, folder) -> "os.PathLike":
+    """``folder/report.md``: Table 1 (in-sample and validation), the inverse checks, and the figure."""
+    from .report import write_report
+
+    blocks = ["```\n" + comparison.table() + "\n```", "{fig:compare}",
+              "Rows: each model's Fig. 3, its residual by branch" + (", its validation" if comparison.validation
+                                                                      is not None else "")
+              + "; last row: the inverse checks."]
+    return write_report(folder, f"Table 1 on {comparison.recording.path}", blocks, {"compare": comparison.plot()})

@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.sweep.plot import heatmap_response, pareto_front, sweep_plot
+from controller.sweep.plot import heatmap_response, pareto_front, sweep_plot, unit_of, winner_heatmap, winner_settings
 
 pts = st.lists(st.tuples(st.floats(0, 100), st.floats(0, 100)), min_size=1, max_size=60)
 
@@ -44,12 +44,36 @@ def test_heatmap_cell_holds_the_least_value_of_its_grid_point():
         assert h.value[iy, ix] <= v
 
 
-def test_sweep_plot_writes_a_png(tmp_path):
+def test_sweep_plot_returns_a_figure_without_switching_the_backend(tmp_path):
+    import matplotlib
+
+    backend = matplotlib.get_backend()
     rng = np.random.default_rng(0)
     n = 50
     table = {"controller": np.array(["pid", "ff+pid"] * 25), "iae": rng.uniform(0.1, 1, n),
              "duty_tv": rng.uniform(10, 100, n)}
     h = heatmap_response(rng.uniform(0.01, 1, n), rng.uniform(1, 100, n), table["iae"], "kp", "ki")
+    fig = sweep_plot(table, "iae", heat=h, default_index=0, best_index=int(np.argmin(table["iae"])))
+    assert len(fig.axes) == 3  # front, heatmap, colour bar
     out = tmp_path / "p.png"
-    sweep_plot(table, str(out), "iae", heat=h, default_index=0, best_index=int(np.argmin(table["iae"])))
-    assert out.read_bytes()[:4] == b"\x89PNG"
+    fig.savefig(out)
+    assert out.read_bytes()[:4] == b"\x89PNG" and matplotlib.get_backend() == backend
+
+
+def test_heatmap_maps_the_winning_words_own_settings_with_units():
+    """The configured pair belongs to ff+pid; ff+kf wins: the map shows ff+kf's settings over ff+kf's candidates."""
+    rng = np.random.default_rng(1)
+    n = 40
+    word = np.array(["ff+pid"] * n + ["ff+kf"] * n)
+    kp = np.concatenate([rng.uniform(0.1, 1, n), [None] * n])
+    qf = np.concatenate([[None] * n, rng.uniform(0.5, 5, n)])
+    qb = np.concatenate([[None] * n, rng.uniform(0.005, 0.1, n)])
+    iae = np.concatenate([rng.uniform(0.5, 1, n), rng.uniform(0.1, 0.4, n)])
+    table = {"controller": word, "ff_pid.kp": kp, "ff_pid.ki": kp, "kf.q_flow_lpm": qf, "kf.q_bias_lpm": qb,
+             "iae": iae}
+    best = int(np.argmin(iae))
+    assert set(winner_settings(table, best, ("ff_pid.kp", "ff_pid.ki"))) == {"kf.q_flow_lpm", "kf.q_bias_lpm"}
+    h = winner_heatmap(table, "iae", best, ("ff_pid.kp", "ff_pid.ki"))
+    assert "ff+kf" in h.x_name and "(L/min)" in h.x_name
+    assert np.nanmin(h.value) == iae[best]
+    assert unit_of("ff_pid.ki") == "% per (L/min s)" and unit_of("valve.tau_s") == "s"

@@ -8,11 +8,13 @@ def add_arguments(p) -> None:
     p.add_argument("recording", metavar="REC.csv", help="recording to fit on (in-sample figures)")
     p.add_argument("--validate", default=None, metavar="REC2.csv", help="recording for validation only, never fitted")
     p.add_argument("--json", required=True, metavar="OUT.json", help="figures, DESIGN.md layout")
-    p.add_argument("--plot", default=None, metavar="OUT.png", help="Fig. 3 per model and residuals by branch")
+    p.add_argument("--plot", default=None, metavar="OUT.png",
+                   help="Fig. 3 per model, residuals by branch, validation and the inverse checks")
+    p.add_argument("--report", default=None, metavar="DIR", help="Markdown report with Table 1 and the figure")
 
 
 def run(args) -> int:
-    from models.compare import compare_plot, compare_response
+    from models.compare import compare_response, write_compare_report
     from models.model import write_json_atomic
     from models.recording import read_recording
 
@@ -27,6 +29,8 @@ def run(args) -> int:
     write_json_atomic(args.json, comparison.to_json())
     print(comparison.table())
     if args.plot:
-        compare_plot(comparison, args.plot)
+        comparison.plot().savefig(args.plot, dpi=110)
         print(f"plot -> {args.plot}")
+    if args.report:
+        print(f"report -> {write_compare_report(comparison, args.report)}")
     return 0

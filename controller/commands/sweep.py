@@ -8,7 +8,9 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="SWEEP.csv", help="one row per candidate")
     p.add_argument("--json", default=None, metavar="S.json",
                    help='summary {"candidates","seconds","default":{"params",..},"best":{..}}')
-    p.add_argument("--plot", default=None, metavar="P.png", help="Pareto front (IAE against duty TV) and heatmap")
+    p.add_argument("--plot", default=None, metavar="P.png",
+                   help="Pareto front (IAE against duty TV) and a heatmap over the winning controller's settings")
+    p.add_argument("--report", default=None, metavar="DIR", help="Markdown report: default, best, and the plot")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (e.g. tcp://host:8786); default: a local process pool")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="local processes (default: one per core)")
@@ -37,15 +39,19 @@ def run(args) -> int:
         best = s.candidates
         cfg = apply(s.run, best.controller[r.best], best.row(r.best))
         write_run_config(cfg, args.best_config, duration_s=s.duration_s)
-    if args.plot:
-        from controller.sweep.plot import heatmap_response, sweep_plot
+    if args.plot or args.report:
+        from controller.sweep.plot import sweep_plot, winner_heatmap, winner_settings, write_sweep_report
 
-        heat = None
-        if s.heatmap:
-            x, y = (np.array([np.nan if v is None else v for v in r.table[h]], dtype=float) for h in s.heatmap)
-            heat = heatmap_response(x, y, r.table[s.objective], *s.heatmap)
-        sweep_plot(r.table, args.plot, s.objective, heat=heat, default_index=r.default, best_index=r.best,
-                   title=f"{summ['candidates']} candidates x {summ['variants']} plant variants")
+        heat = winner_heatmap(r.table, s.objective, r.best, s.heatmap)
+        xy = None
+        if heat is not None:
+            xy = tuple(r.table[n][r.best] for n in winner_settings(r.table, r.best, s.heatmap))
+        fig = sweep_plot(r.table, s.objective, heat=heat, default_index=r.default, best_index=r.best,
+                         title=f"{summ['candidates']} candidates x {summ['variants']} plant variants", best_xy=xy)
+        if args.plot:
+            fig.savefig(args.plot, dpi=110)
+        if args.report:
+            print(f"report -> {write_sweep_report(args.report, summ, s.objective, fig)}")
     d, b = summ["default"], summ["best"]
 
     def f(v):

@@ -1,7 +1,7 @@
 """Show a diagnosis: D.json, the per-row predictions (P.csv) and a Markdown report with plots.
 
 Compute and draw are split: :func:`models.diagnose.diagnose_response`
-computes, :func:`diagnose_plot` draws the figures (matplotlib Agg, PNG) and
+computes, :func:`diagnose_plot` returns the figures (no global matplotlib backend switch) and
 :func:`write_report` writes the Markdown that shows them.
 """
 from __future__ import annotations
@@ -42,26 +42,26 @@ def _shade_holdout(ax, diag: Diagnosis) -> None:
         ax.axvspan(diag.t_s[a], diag.t_s[b - 1], color="0.9", lw=0)
 
 
-def diagnose_plot(diag: Diagnosis, folder) -> dict:
-    """Draw the report's figures into ``folder``; returns ``{name: file name}``.
+def _figure(rows: int, cols: int, figsize, sharex: bool = False):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, cols, sharex=sharex)
+
+
+def diagnose_plot(diag: Diagnosis) -> dict:
+    """The report's figures, ``{file name: matplotlib Figure}``.
 
     ``residuals.png``: residual before and after over time (holdout shaded);
     ``location.png``: where the baseline residual is (duty, flow, branch, after steps);
     ``finding_N_<effect>.png``: each finding's correction against the residual it explains.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    files = {}
+    figs = {}
     s = _every(len(diag.t_s))
     e0 = diag.flow_lpm - diag.baseline_lpm
     e1 = diag.flow_lpm - diag.augmented_lpm
 
-    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig, ax = _figure(2, 1, (10, 6), sharex=True)
     _shade_holdout(ax[0], diag)
     ax[0].plot(diag.t_s[s], diag.flow_lpm[s], lw=0.6, label="measured")
     ax[0].plot(diag.t_s[s], diag.augmented_lpm[s], lw=0.6, label="augmented")
@@ -74,12 +74,10 @@ def diagnose_plot(diag: Diagnosis, folder) -> dict:
     ax[1].set_ylabel("residual (L/min)")
     ax[1].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(folder / "residuals.png", dpi=110)
-    plt.close(fig)
-    files["residuals"] = "residuals.png"
+    figs["residuals.png"] = fig
 
     loc = diag.location
-    fig, ax = plt.subplots(2, 2, figsize=(10, 6))
+    fig, ax = _figure(2, 2, (10, 6))
     for a, table, label in ((ax[0, 0], loc.duty, "duty (%)"), (ax[0, 1], loc.flow, "flow (L/min)"),
                             (ax[1, 1], loc.after_step, "time since step (s, bins)")):
         if label.startswith("time"):
@@ -102,14 +100,12 @@ def diagnose_plot(diag: Diagnosis, folder) -> dict:
     ax[1, 0].set_ylabel("baseline residual (L/min)")
     ax[1, 0].legend(fontsize=7, markerscale=8)
     fig.tight_layout()
-    fig.savefig(folder / "location.png", dpi=110)
-    plt.close(fig)
-    files["location"] = "location.png"
+    figs["location.png"] = fig
 
     for i, (f, pred, prev) in enumerate(zip(diag.findings, diag.steps_lpm, diag.before_lpm), start=1):
         delta = pred - prev
         resid = diag.flow_lpm - prev
-        fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
+        fig, ax = _figure(1, 2, (10, 3.8))
         k = np.argmax(np.abs(delta))
         span = max(2.0, (diag.t_s[-1] - diag.t_s[0]) / 20)
         w = (diag.t_s > diag.t_s[k] - span) & (diag.t_s < diag.t_s[k] + span)
@@ -131,17 +127,18 @@ def diagnose_plot(diag: Diagnosis, folder) -> dict:
         ptxt = ", ".join(f"{k_} = {v:.3g}" for k_, v in f.params.items())
         fig.suptitle(f"{f.effect}: {ptxt}", fontsize=9)
         fig.tight_layout()
-        name = f"finding_{i}_{f.effect}.png"
-        fig.savefig(folder / name, dpi=110)
-        plt.close(fig)
-        files[name] = name
-    return files
+        figs[f"finding_{i}_{f.effect}.png"] = fig
+    return figs
 
 
 def write_report(diag: Diagnosis, folder, source: str = "") -> Path:
     """``folder/report.md`` with the figures of :func:`diagnose_plot`; returns its path."""
     folder = Path(folder)
-    files = diagnose_plot(diag, folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    figs = diagnose_plot(diag)
+    for name, fig in figs.items():
+        fig.savefig(folder / name, dpi=110)
+    files = {"residuals": "residuals.png", "location": "location.png", **{n: n for n in figs}}
     b = diag.baseline
     m = diag.model
     lines = [f"# Diagnosis{': ' + source if source else ''}", "",
