@@ -31,6 +31,7 @@ VERBS = {
     "sweep": ("controller.commands.sweep", "a controller tuning sweep"),
     "diagnose": ("controller.commands.diagnose", "find the physics a simulation leaves out"),
     "monitor": ("controller.commands.monitor", "live view of a running controller over Zenoh"),
+    "certs": ("controller.commands.certs", "a site CA and one certificate per role, for --certs"),
 }
 
 

@@ -15,6 +15,9 @@ def add_arguments(p) -> None:
                         "FILE.csv: replay a recorded reference (t_s, ref_lpm)")
     p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", default=None, metavar="EP", help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--certs", default=None, metavar="DIR",
+                   help="TLS with mutual authentication and access control, as role controller "
+                        "(files of `valvectl certs DIR`)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="run length, s (0: until interrupted; default: the configuration's, or a FILE reference's span)")
     p.add_argument("--record", default=None, metavar="RUN.csv", help="one row per step, flushed as written")
@@ -78,7 +81,7 @@ def run(args) -> int:
     if plant_kind == "zenoh" or ref_kind == "zenoh":
         from controller.transport.zenoh import EmbeddedValve, ZenohTransport, open_session
 
-        session = open_session(cfg, args.listen, args.connect, role="controller")
+        session = open_session(cfg, args.listen, args.connect, role="controller", certs=args.certs)
         zt = ZenohTransport(session, cfg["zenoh"]["id"], settings.stale_ms * 1e-3)
     if plant_kind == "sim":
         from controller.transport.sim import SimTransport

@@ -8,6 +8,8 @@ def add_arguments(p) -> None:
     p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", default=None, metavar="EP",
                    help="Zenoh endpoint to connect to (repeatable; default: the controller's listen endpoints)")
+    p.add_argument("--certs", default=None, metavar="DIR",
+                   help="TLS with mutual authentication and access control, as role valve (files of `valvectl certs DIR`)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until interrupted)")
 
 
@@ -26,7 +28,7 @@ def run(args) -> int:
                   seed=cfg[""]["seed"])
     stopping = []
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))
-    session = open_session(cfg, args.listen, args.connect, role="valve")
+    session = open_session(cfg, args.listen, args.connect, role="valve", certs=args.certs)
     transport = ValveNodeTransport(session, cfg["zenoh"]["id"])
     node = ValveNode(plant, transport, node_cfg["rate_hz"], node_cfg["command_timeout_ms"] * 1e-3,
                      RealClock(cfg["loop"]["spin_us"] * 1e-6))

@@ -32,8 +32,9 @@ RING = 16
 DRAIN_BUDGET_S = 150e-6
 
 
-def session_config(cfg, listen: list[str] | None, connect: list[str] | None, role: str) -> zenoh.Config:
-    """Zenoh configuration for ``role`` (``controller`` or ``valve``).
+def session_config(cfg, listen: list[str] | None, connect: list[str] | None, role: str,
+                   certs: str | None = None) -> zenoh.Config:
+    """Zenoh configuration for ``role`` (``controller``, ``valve``, ``stack`` or ``monitor``).
 
     ``config/zenoh.json5`` (``[zenoh] config``) is loaded when present; the
     session is a peer with multicast scouting off either way. Endpoints:
@@ -58,15 +59,22 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
     if not os.path.exists(path):  # the retry settings of zenoh.json5, so any party may start first
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
+    if certs is not None:
+        from .security import secure
+
+        secure(conf, certs, role, z["id"])
     return conf
 
 
-def open_session(cfg, listen, connect, role: str):
-    """Open the Zenoh session; a bad endpoint or a taken port is bad input."""
+def open_session(cfg, listen, connect, role: str, certs: str | None = None):
+    """Open the Zenoh session of ``role``; with ``certs`` (a ``valvectl certs`` folder) the secure one
+    (:func:`controller.transport.security.secure`). A bad endpoint, a taken port or a missing
+    certificate is bad input (:class:`models.recording.InputError`)."""
     from models.recording import InputError
 
+    conf = session_config(cfg, listen, connect, role, certs)
     try:
-        return zenoh.open(session_config(cfg, listen, connect, role))
+        return zenoh.open(conf)
     except Exception as exc:  # the binding raises ZError for bad locators and bind failures
         raise InputError(f"zenoh: cannot open a session ({exc})") from None
 
