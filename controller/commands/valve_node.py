@@ -9,7 +9,8 @@ def add_arguments(p) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="EP",
                    help="Zenoh endpoint to connect to (repeatable; default: the controller's listen endpoints)")
     p.add_argument("--certs", default=None, metavar="DIR",
-                   help="TLS with mutual authentication and access control, as role valve (files of `valvectl certs DIR`)")
+                   help="TLS with mutual authentication and access control, as role valve "
+                        "(files of `valvectl certs DIR`)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until interrupted)")
 
 
