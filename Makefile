@@ -19,7 +19,10 @@ test: setup
 	$(PY) -m pytest -q
 
 # The main job: a 20 s closed-loop run of a breath profile with ff+kf on the embedded simulated
-# valve (valve_dynamics, transport_delay and sensor noise on; config/run.toml).
+# valve (valve_dynamics, transport_delay and sensor noise on; config/run.toml). The simulated valve
+# is the bench valve's twin (pi-asym of the identification recording, config/valves/bench/), a
+# different model kind from the feedforward's PI (config/valve_model.json): no controller against
+# its own model.
 run: setup
 	$(VENV)/bin/valvectl run --config config/run.toml --json run.json --plot run.png
 

@@ -42,8 +42,10 @@ import math
 import numpy as np
 from numba import njit
 
+from models import pi_asym, pi_mod, play
+
 # -- per-plant parameter vector P[b, :] (float64) --
-(XC, XH, YC, YH, OFF, GAIN_LO,
+(XC, XH, YC, YH, OFF, GAIN_LO, A_ENV, P_ENV, FLOOR,
  ASYM,
  HEAT_K, E_TH, T_AMB, ALPHA,
  P_NOM, P_MODEL_ABS, P_ATM, WANDER, E_W, SQ_W, DROOP,
@@ -51,7 +53,7 @@ from numba import njit
  DELAY_N, DELAY_F,
  CRACK, SAT, CREEP, E_CREEP,
  NOISE, SENSOR_OFFSET, SCALE, RANGE_LO, RANGE_HI,
- N_PARAMS) = range(36)
+ N_PARAMS) = range(39)
 
 # -- per-plant scalar state X[b, :] --
 (S_TEMP, S_WANDER, S_LAG1, S_LAG2, S_CREEP, S_CREEP_TARGET, S_Q_REV, S_DIR,
@@ -139,7 +141,7 @@ def normal(key, k):
 
 
 @njit(cache=True)
-def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_out, buf_out, out):
+def advance(duty, k0, settle, P, R, W, H, G, keys, play_in, x_in, buf_in, play_out, x_out, buf_out, out):
     """Advance B plants N steps (out of place: ``*_in`` are read, ``*_out`` written).
 
     Time runs in the outer loop and the plants in the inner loops, so the play
@@ -161,6 +163,8 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
     R, W : ndarray, shape (m, B) or (m, 1)
         Play thresholds and weights in normalized units (padding: w = 0);
         one column when every plant has the same model.
+    H, G : ndarray, shape (k, B) or (k, 1)
+        Dead-zone superposition on the play output (``pi-mod``; ``[0], [1]``: identity; padding g = 0).
     keys : ndarray of uint64, shape (B, 2)
         Noise keys, sensor and supply wander (:func:`plant_keys`).
     play_in, x_in, buf_in : ndarray
@@ -181,11 +185,12 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
     u = np.empty(B)
     uc = np.empty(B)
     lift = np.empty(B)
+    scale = np.empty(B)
     acc = np.empty(B)
     temp = np.empty(B)
     for n in range(N):
         k = k0 + n
-        play = play_in if n == 0 else play_out
+        ops = play_in if n == 0 else play_out
 
         # 1. coil heating: the magnetics see the current, V d / R(T)
         for b in range(B):
@@ -198,20 +203,23 @@ def advance(duty, k0, settle, P, R, W, keys, play_in, x_in, buf_in, play_out, x_
             u[b] = (d_eff[b] - P[b, XC]) / P[b, XH]
             uc[b] = min(max(u[b], -1.0), 1.0)
             lift[b] = P[b, ASYM] * (uc[b] + 1.0) * 0.5
+            scale[b] = pi_asym.down_scale(uc[b], P[b, A_ENV], P[b, P_ENV])
             acc[b] = 0.0
 
-        # 2. forward PI, Eq. (1)-(4), on the identified input range
+        # 2. forward model of the PI family on the identified input range: Eq. (1) (descending
+        # thresholds scaled by pi-asym's envelope, widened by the asymmetric effect), Eq. (4),
+        # pi-mod's dead-zone superposition and closed flow
         for i in range(m):
             for b in range(B):
                 j = b if per_plant else 0
-                lo = uc[b] - R[i, j]               # Eq. (1), ascending side
-                hi = uc[b] + R[i, j] + lift[b]     # Eq. (1), descending side (widened)
-                yi = min(max(play[i, b], lo), hi)
+                yi = play.eq1(ops[i, b], uc[b], R[i, j], R[i, j] * scale[b] + lift[b])
                 play_out[i, b] = yi
                 acc[b] += W[i, j] * yi
 
         for b in range(B):
-            q_model = (acc[b] + P[b, OFF]) * P[b, YH] + P[b, YC]          # Eq. (4)
+            j = b if per_plant else 0
+            y_model = max(pi_mod.dead_zone(H[:, j], G[:, j], acc[b]) + P[b, OFF], P[b, FLOOR])
+            q_model = y_model * P[b, YH] + P[b, YC]          # Eq. (4)
             if u[b] < -1.0:
                 q_model += P[b, GAIN_LO] * (d_eff[b] - (P[b, XC] - P[b, XH]))
 

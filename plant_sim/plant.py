@@ -26,6 +26,7 @@ from typing import Annotated, Literal, NamedTuple, Sequence
 import msgspec
 import numpy as np
 
+from models import play as _play
 from models.model import FittedModel, load_model
 from models.recording import InputError
 from models.schema import Finite, NonNegative, Positive, convert
@@ -104,8 +105,9 @@ class PlantParams:
     sensor_offset: float = 0.0
 
     def __post_init__(self):
-        if self.model.kind != "pi":
-            raise InputError(f"plant model: kind {self.model.kind!r}, the plant needs a 'pi' model")
+        if self.model.kind not in PLANT_KINDS:
+            raise InputError(f"plant model: kind {self.model.kind!r} cannot drive the simulated valve "
+                             f"(one of {', '.join(PLANT_KINDS)})")
         checked = check_settings({f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "model"},
                                  "plant")
         for name in EFFECTS:
@@ -254,6 +256,18 @@ def _major_loop_half_width(core) -> float:
     return float(max(half, 0.0))
 
 
+#: Model kinds the kernel runs: the PI family (play operators, Eq. 1-4), any envelope and dead zones.
+PLANT_KINDS = ("pi", "pi-asym", "pi-mod")
+
+
+def _family(core) -> dict:
+    """A PI-family core as the kernel's arrays: play ``r, w, y0``, dead zones ``h, g``, envelope ``a, p``, ``floor``."""
+    n = len(core.r)
+    return {"r": core.r, "w": core.w, "y0": getattr(core, "y0", np.full(n, np.nan)),
+            "h": getattr(core, "h", np.zeros(1)), "g": getattr(core, "g", np.ones(1)),
+            "a": getattr(core, "a", 0.0), "p": getattr(core, "p", 1.0), "floor": getattr(core, "floor", -np.inf)}
+
+
 def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     """The kernel's parameter vector for one plant at ``rate_hz``."""
     dt = 1.0 / rate_hz
@@ -261,6 +275,8 @@ def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     xs, ys = p.model.x_scale, p.model.y_scale
     v[K.XC], v[K.XH], v[K.YC], v[K.YH] = xs.center, xs.half_range, ys.center, ys.half_range
     v[K.OFF] = p.model.core.offset
+    fam = _family(p.model.core)
+    v[K.A_ENV], v[K.P_ENV], v[K.FLOOR] = fam["a"], fam["p"], fam["floor"]
     v[K.GAIN_LO] = ys.half_range / xs.half_range
     core = p.model.core
     v[K.ASYM] = p.asymmetric_hysteresis * _major_loop_half_width(core)
@@ -316,19 +332,22 @@ class BatchPlant:
         self.seeds = seeds
         self._keys = np.array([K.plant_keys(s) for s in seeds], dtype=np.uint64)
         self._P = np.array([_pack(p, self.rate_hz) for p in self.params])
-        models = {(c.r.tobytes(), c.w.tobytes(), c.y0.tobytes()): c for c in (p.model.core for p in self.params)}
-        m = max(len(c.r) for c in models.values())
+        fams = [_family(p.model.core) for p in self.params]
+        distinct = {tuple(np.asarray(f[k]).tobytes() for k in ("r", "w", "y0", "h", "g")) for f in fams}
+        m = max(len(f["r"]) for f in fams)
+        k = max(len(f["h"]) for f in fams)
         # operator-major (m, B): the kernel updates operator i of every plant as one vector;
         # one column when every plant has the same model
-        cols = len(self.params) if len(models) > 1 else 1
+        cols = len(self.params) if len(distinct) > 1 else 1
         self._R = np.zeros((m, cols))
         self._W = np.zeros((m, cols))  # padding operators have zero weight
         self._Y0 = np.full((m, cols), np.nan)  # NaN: at rest at the first duty (models.play.init)
-        for b, p in enumerate(self.params[:cols]):
-            core = p.model.core
-            self._R[: len(core.r), b] = core.r
-            self._W[: len(core.w), b] = core.w
-            self._Y0[: len(core.y0), b] = core.y0
+        self._H = np.zeros((k, cols))
+        self._G = np.zeros((k, cols))  # padding dead zones have zero weight
+        for b, f in enumerate(fams[:cols]):
+            n, nk = len(f["r"]), len(f["h"])
+            self._R[:n, b], self._W[:n, b], self._Y0[:n, b] = f["r"], f["w"], f["y0"]
+            self._H[:nk, b], self._G[:nk, b] = f["h"], f["g"]
         n_del = self._P[:, K.DELAY_N].astype(int) + (self._P[:, K.DELAY_F] > 0)
         self._L = int(n_del.max()) + 1 if n_del.max() > 0 else 1
 
@@ -366,7 +385,7 @@ class BatchPlant:
         d0 = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (B,))
         P = self._P
         u0 = np.clip((d0 - P[:, K.XC]) / P[:, K.XH], -1.0, 1.0)
-        play = np.maximum(u0 - self._R, np.minimum(u0 + self._R, np.where(np.isnan(self._Y0), u0, self._Y0)))  # Eq. (3), (m, B)
+        play = _play.init(self._R, u0[None, :], self._Y0)  # Eq. (3), (m, B)
         x = np.zeros((B, K.N_STATE))
         x[:, K.S_TEMP] = P[:, K.T_AMB]
         x[:, K.S_U_PREV] = u0
@@ -378,7 +397,7 @@ class BatchPlant:
         """Run the kernel on ``duty`` of shape (N, B); outputs (N, B, N_OUT)."""
         out = np.empty(duty.shape + (K.N_OUT,))
         play, x, buf = np.empty_like(state.play), np.empty_like(state.x), np.empty_like(state.buf)
-        K.advance(duty, state.k, settle, self._P, self._R, self._W, self._keys,
+        K.advance(duty, state.k, settle, self._P, self._R, self._W, self._H, self._G, self._keys,
                   state.play, state.x, state.buf, play, x, buf, out)
         return PlantState(state.k + duty.shape[0], play, x, buf), out
 

@@ -50,6 +50,35 @@ def test_effect_free_plant_is_the_fitted_model(clean):
     assert np.array_equal(true_flow(clean, duty), expected)
 
 
+@pytest.fixture(scope="module")
+def family_models(bench_identification):
+    """Each PI-family kind the plant runs, fitted on the identification recording."""
+    from models.recording import read_recording
+
+    rec = read_recording(bench_identification)
+    return {kind: fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm) for kind in ("pi", "pi-asym", "pi-mod")}
+
+
+@pytest.mark.parametrize("kind", ["pi", "pi-asym", "pi-mod"])
+def test_every_kind_as_plant_reproduces_its_own_predict(clean, family_models, kind):
+    model = family_models[kind]
+    duty = np.concatenate([sines(RATE, 30.0), paper_identification(RATE)[:3000]])
+    duty = np.clip(duty, model.x_scale.center - model.x_scale.half_range, model.x_scale.center + model.x_scale.half_range)
+    expected, _ = model.predict(duty)
+    np.testing.assert_allclose(true_flow(clean.replace(model=model), duty), np.maximum(expected, 0.0), rtol=0, atol=1e-9)
+
+
+def test_batch_of_mixed_kinds_is_each_plant_alone_bit_for_bit(family_models):
+    params = [load_plant().replace(model=m, valve_dynamics=0.02, transport_delay=0.013, asymmetric_hysteresis=0.3)
+              for m in family_models.values()]
+    duty = np.concatenate([sines(RATE, 20.0), np.full(200, 30.0), sines(RATE, 10.0)])
+    batch = BatchPlant(params, RATE, [4, 5, 6]).simulate(np.broadcast_to(duty, (3, len(duty))))
+    for b, p in enumerate(params):
+        alone = Plant(p, RATE, seed=4 + b).simulate(duty)
+        for col in ("flow_lpm", "true_flow_lpm"):
+            assert np.array_equal(batch[col][b], alone[col])
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.floats(0.0, 100.0), min_size=2, max_size=40))
 def test_flow_is_never_negative_and_closed_at_zero_duty(clean, levels):
