@@ -8,11 +8,19 @@ where the chunks ran. With ``scheduler`` (a Dask scheduler address such as
 chunks go to that cluster's workers, which must be able to import this
 package; without it they go to a local pool of ``workers`` processes (one per
 core by default; 1 runs them in this process).
+
+Local workers die with the sweep, however it ends: each asks the kernel
+for ``SIGKILL`` when its parent exits (``prctl(PR_SET_PDEATHSIG)``, Linux;
+elsewhere a thread watching the parent's pid), so a sweep killed with
+SIGTERM or SIGKILL leaves no process burning the cores a control loop needs.
 """
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
+import time
 from typing import Callable, Sequence
 
 from models.recording import InputError
@@ -24,6 +32,38 @@ def default_workers() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:
         return os.cpu_count() or 1
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Pool-worker initializer: end this process when ``parent_pid`` ends.
+
+    ``PR_SET_PDEATHSIG`` makes the kernel send SIGKILL at the parent's exit,
+    even a SIGKILL of the parent; a parent gone before the call is caught by
+    comparing ``getppid()``. Without ``prctl`` a daemon thread polls the
+    parent every 0.2 s. The worker also ignores SIGINT: Ctrl-C is the
+    parent's to handle.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    armed = False
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            armed = ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent_pid:
+        os._exit(1)
+    if not armed:
+        def watch():
+            while os.getppid() == parent_pid:
+                time.sleep(0.2)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
 
 
 def _progress(total: int, desc: str):
@@ -70,7 +110,8 @@ def _pool(fn, chunks, sizes, n, bar) -> list:
     # fork: workers inherit the imported modules and numba's compiled kernels
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     out = [None] * len(chunks)
-    with ProcessPoolExecutor(max_workers=min(n, len(chunks)), mp_context=ctx) as ex:
+    with ProcessPoolExecutor(max_workers=min(n, len(chunks)), mp_context=ctx, initializer=die_with_parent,
+                             initargs=(os.getpid(),)) as ex:
         futs = {ex.submit(fn, c): i for i, c in enumerate(chunks)}
         for f in as_completed(futs):
             i = futs[f]
