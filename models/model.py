@@ -148,17 +148,14 @@ def _json_default(o):
 
 
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    """Write JSON to a temporary file in the same folder, fsync, then rename over ``path``."""
+    """Write JSON atomically (:func:`models.atomicfile.atomic_open`: a kill leaves no temporary file)."""
+    from .atomicfile import atomic_open
+
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, f".{os.path.basename(path)}.tmp{os.getpid()}")
-    with open(tmp, "w", encoding="utf-8") as fh:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with atomic_open(path) as fh:
         json.dump(obj, fh, indent=1, default=_json_default, allow_nan=True)
         fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def save_model(model: FittedModel, path: str | os.PathLike) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import time
 from dataclasses import dataclass
 
@@ -216,13 +215,13 @@ def _cell(v) -> str:
 
 def write_csv(r: SweepResult, path: str) -> None:
     """SWEEP.csv: one row per candidate, parameters then figures (DESIGN.md), written atomically."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
+    from models.atomicfile import atomic_open
+
+    with atomic_open(path, newline="") as fh:
         w = csv.writer(fh)
         w.writerow(r.columns)
         for i in range(len(r.table["controller"])):
             w.writerow([_cell(r.table[c][i]) for c in r.columns])
-    os.replace(tmp, path)
 
 
 def _json_number(v):
