@@ -60,13 +60,28 @@ def build_parser() -> argparse.ArgumentParser:
             continue  # verb not built yet
         p = sub.add_parser(verb, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _parser=p)
     return parser
+
+
+#: The checkout this valvectl runs from (its config/ holds the default configurations).
+CHECKOUT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def resolve_default_paths(args) -> None:
+    """Every verb's default configuration paths (``config/...``), resolved one way: the working
+    directory's when it has the file, else this checkout's. Paths given on the command line stay as given."""
+    for action in args._parser._actions:
+        d = action.default
+        if (isinstance(d, str) and d.startswith("config/") and getattr(args, action.dest, None) == d
+                and not os.path.exists(d)):
+            setattr(args, action.dest, os.path.join(CHECKOUT, d))
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    resolve_default_paths(args)
     try:
         return int(args._run(args) or 0)
     except InputError as exc:
@@ -75,6 +90,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"valvectl {args.verb}: interrupted\n")
         return 130
+    except BrokenPipeError:  # the reader of our output went away (`| head`): nothing left to say
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

@@ -13,13 +13,29 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    import sys
+    import time
+
     from models.fitting import evaluate, fit_recording
     from models.model import save_model, write_json_atomic
     from models.recording import read_recording
 
+    t0 = time.perf_counter()
+    tty = sys.stderr.isatty()
+
+    def stage(text: str) -> None:
+        if tty:
+            sys.stderr.write(f"\r[{time.perf_counter() - t0:6.1f} s] {text:<60}")
+            sys.stderr.flush()
+
+    stage(f"reading {args.recording}...")
     rec = read_recording(args.recording)
+    stage(f"fitting {args.model} on {len(rec)} rows...")
     model = fit_recording(args.model, rec, n=args.n)
+    stage("scoring the fit...")
     m = evaluate(model, rec.duty_pct, rec.flow_lpm)
+    if tty:
+        sys.stderr.write("\n")
     model.meta.update({"mae": m.mae, "rmse": m.rmse, "r": m.r})
     save_model(model, args.output)
     out = {"kind": model.kind, "mae": m.mae, "rmse": m.rmse, "r": m.r, "fit_s": model.meta["fit_s"]}

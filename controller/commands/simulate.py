@@ -1,8 +1,12 @@
 """Make a recording from the simulated valve (plant_sim), with any effects switched on."""
 from __future__ import annotations
 
+import sys
+
 #: Columns of the recording (DESIGN.md, Recordings).
 COLUMNS = ("t_s", "duty_pct", "flow_lpm", "supply_bar", "coil_temp_c")
+#: Rows per chunk when progress is shown (chunks chain exactly: the same recording as one call).
+CHUNK = 200_000
 
 
 def add_arguments(p) -> None:
@@ -22,6 +26,25 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="REC.csv", help="recording to write")
 
 
+def simulate_with_progress(params, rate_hz: float, seed: int, duty):
+    """:meth:`plant_sim.plant.Plant.simulate` in chunks with a progress bar on stderr (same recording)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from plant_sim.plant import BatchPlant
+
+    plant = BatchPlant([params], rate_hz, [seed])
+    state = plant.init(duty[0])
+    parts = []
+    with tqdm(total=len(duty), unit=" rows", unit_scale=True, desc="simulate", file=sys.stderr) as bar:
+        for i in range(0, len(duty), CHUNK):
+            state, c = plant.run(state, duty[None, i:i + CHUNK])
+            parts.append(c)
+            bar.update(c["flow_lpm"].shape[1])
+    cols = {k: np.concatenate([c[k][0] for c in parts]) for k in parts[0]}
+    return {"t_s": np.arange(len(duty)) / plant.rate_hz, "duty_pct": duty, **cols}
+
+
 def run(args) -> int:
     from models.recording import InputError, write_recording
     from plant_sim.effects import parse_effect
@@ -31,7 +54,10 @@ def run(args) -> int:
     effects = dict(parse_effect(text) for text in args.effect)
     params = load_plant(args.plant, effects)
     duty = protocol(args.protocol, args.rate, args.duration, seed=args.seed)
-    cols = Plant(params, args.rate, seed=args.seed).simulate(duty)
+    if sys.stderr.isatty() and len(duty) > CHUNK:
+        cols = simulate_with_progress(params, args.rate, args.seed, duty)
+    else:
+        cols = Plant(params, args.rate, seed=args.seed).simulate(duty)
     try:
         write_recording(args.output, {c: cols[c] for c in COLUMNS})
     except OSError as exc:

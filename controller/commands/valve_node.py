@@ -11,11 +11,13 @@ def add_arguments(p) -> None:
     p.add_argument("--certs", default=None, metavar="DIR",
                    help="TLS with mutual authentication and access control, as role valve "
                         "(files of `valvectl certs DIR`)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until interrupted)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default or 0: until interrupted)")
 
 
 def run(args) -> int:
     import signal
+
+    from models.recording import InputError
 
     from controller.config import load_run_config
     from controller.loop import RealClock, realtime
@@ -23,25 +25,28 @@ def run(args) -> int:
     from controller.valve_node import ValveNode
     from plant_sim.plant import Plant, load_plant
 
+    if args.duration is not None and not args.duration >= 0:
+        raise InputError(f"--duration: must be >= 0, got {args.duration}")
+    duration = args.duration or None  # 0: until interrupted
     cfg = load_run_config(args.config)
     node_cfg = cfg["valve_node"]
     plant = Plant(load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"]), node_cfg["rate_hz"],
                   seed=cfg[""]["seed"])
-    stopping = []
-    signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))
+    # SIGTERM or Ctrl-C end the node at its next step, with its summary.
+    stopping: list[bool] = []
+    previous = {sig: signal.signal(sig, lambda *_: stopping.append(True)) for sig in (signal.SIGTERM, signal.SIGINT)}
     session = open_session(cfg, args.listen, args.connect, role="valve", certs=args.certs)
     transport = ValveNodeTransport(session, cfg["zenoh"]["id"])
     node = ValveNode(plant, transport, node_cfg["rate_hz"], node_cfg["command_timeout_ms"] * 1e-3,
                      RealClock(cfg["loop"]["spin_us"] * 1e-6))
     try:
         with realtime(cfg["loop"]["rt_priority"]):
-            st = node.run(args.duration, stop=lambda: bool(stopping))
-    except KeyboardInterrupt:
-        st = None
+            st = node.run(duration, stop=lambda: bool(stopping))
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         transport.close()
         session.close()
-    if st is not None:
-        print(f"valve-node: {st.steps} steps, {st.overruns} overruns, {st.commands} commands, "
-              f"{st.bad_commands} bad, {st.timeouts} command timeouts")
+    print(f"valve-node: {st.steps} steps, {st.overruns} overruns, {st.commands} commands, "
+          f"{st.bad_commands} bad, {st.timeouts} command timeouts")
     return 0
