@@ -24,7 +24,8 @@ test: setup
 # different model kind from the feedforward's PI (config/valve_model.json): no controller against
 # its own model.
 run: setup
-	$(VENV)/bin/valvectl run --config config/run.toml --json run.json --plot run.png
+	mkdir -p out
+	$(VENV)/bin/valvectl run --config config/run.toml --json out/run.json --plot out/run.png --report out/run
 
 # The simulated valve's default forward model: the PI fitted on the identification recording.
 model: setup
