@@ -135,3 +135,31 @@ def test_monitor_in_a_pty_shows_a_live_run_of_another_process_and_records_it(tmp
     ctl = np.array([r[7] for r in run])
     i = int(np.flatnonzero(ctl == "ff+pid")[0])
     assert abs(duty[i] - duty[i - 1]) <= 10000.0 / 1000.0 + 1e-9
+
+
+def test_secured_monitor_reads_the_status_of_a_secured_loop(tmp_path):
+    """--certs: the monitor (role monitor) sees ctrl/status over TLS; a monitor without certificates sees nothing."""
+    site = tmp_path / "site"
+    r = subprocess.run([sys.executable, "-m", "controller.cli", "certs", str(site)], cwd=ROOT, capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    rec, good, rogue = tmp_path / "run.csv", tmp_path / "m.csv", tmp_path / "rogue.csv"
+    ctrl = valvectl("run", "--plant", "zenoh", "--listen", ep, "--certs", str(site), "--duration", "0",
+                    "--record", str(rec))
+    node = valvectl("valve-node", "--connect", ep, "--certs", str(site))
+    mons = []
+    try:
+        wait_for(lambda: any(r[6] == "running" for r in rows(rec)[-50:]), "the secured loop running", (ctrl, node))
+        mons = [valvectl("monitor", "--connect", ep, "--certs", str(site), "--duration", "5", "--record", str(good)),
+                valvectl("monitor", "--connect", ep, "--duration", "5", "--record", str(rogue))]
+        for m in mons:
+            _, err = m.communicate(timeout=90)
+            assert m.returncode == 0, err
+    finally:
+        for p in (*mons, ctrl, node):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(30)
+    assert len(rows(good)) >= 5 and rows(good)[-1][1] == "running"
+    assert rows(rogue) == []

@@ -8,6 +8,9 @@ def add_arguments(p) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="EP",
                    help="Zenoh endpoint to connect to (repeatable; default: the controller's listen endpoints)")
     p.add_argument("--duration", type=float, default=0.0, metavar="S", help="stop after S seconds (0: until interrupted)")
+    p.add_argument("--certs", default=None, metavar="DIR",
+                   help="TLS with mutual authentication and access control, as role monitor "
+                        "(read-only; files of `valvectl certs DIR`)")
     p.add_argument("--record", default=None, metavar="M.csv",
                    help="one row per ctrl/status received: t_s, state, controller, ref_lpm, flow_lpm, duty_pct, "
                         "error_lpm, alarms (flushed as written)")
@@ -32,7 +35,7 @@ def run(args) -> int:
         raise InputError(f"--duration: must be >= 0, got {args.duration}")
     cfg = load_run_config(args.config)
     key = f"vent/valve/{cfg['zenoh']['id']}/ctrl/status"
-    session = open_session(cfg, None, args.connect, role="monitor")
+    session = open_session(cfg, None, args.connect, role="monitor", certs=args.certs)
     sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(64))
     writer = RecordingWriter(args.record, MONITOR_COLUMNS) if args.record else None
     m = MonitorState()
