@@ -13,7 +13,7 @@ from controller.cli import main
 
 zenoh = pytest.importorskip("zenoh")
 
-from tests.zenoh_helpers import ROOT, free_port  # noqa: E402
+from tests.zenoh_helpers import ROOT, client_session, free_port, wait_for  # noqa: E402
 
 
 def test_default_configs_resolve_from_the_checkout_outside_it(tmp_path, monkeypatch, capsys):
@@ -49,7 +49,10 @@ def test_valve_node_prints_its_summary_on_ctrl_c_and_runs_until_interrupted_with
     ep = f"tcp/127.0.0.1:{free_port()}"
     node = subprocess.Popen([sys.executable, "-m", "controller.cli", "valve-node", "--listen", ep, "--connect", ep,
                              "--duration", "0"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # start-up on a busy machine; it must still be running (0 = until interrupted)
+    with client_session(ep) as s:  # running once it publishes its flow
+        meas = s.declare_subscriber("vent/valve/insp/meas/flow", zenoh.handlers.RingChannel(4))
+        wait_for(lambda: meas.try_recv() is not None, "the valve node publishing", (node,))
+    time.sleep(1.5)  # and still running later (0 = until interrupted)
     assert node.poll() is None
     node.send_signal(signal.SIGINT)
     out, err = node.communicate(timeout=60)
