@@ -185,6 +185,7 @@ def test_normal_breaths_with_noise_raise_no_alarm(cfg, model):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)  # 600 000 loop steps: minutes on a busy 2-core machine
 @pytest.mark.parametrize("word", ["ff+kf", "ff+pid"])
 def test_ten_minutes_of_normal_breaths_raise_no_alarm(cfg, model, word):
     res = breath_run(cfg, model, word, SimTransport(plant(cfg, seed=11)), 600.0)
