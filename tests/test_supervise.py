@@ -75,10 +75,13 @@ def test_mode_switches_take_over_within_one_step_without_a_duty_jump(cfg, model)
 
 def test_a_switch_with_a_tight_rate_limit_is_still_bumpless(cfg, model, tmp_path):
     """With 0.2 %/step a law restarted cold (duty from 0) would show as a ramp; transfer continues the duty."""
+    import re
+
     text = open("config/run.toml").read().replace("rate_pct_per_s = 10000.0", "rate_pct_per_s = 200.0")
+    for key in ("model", "plant_config"):  # the copy lives elsewhere: its files by absolute path
+        text = re.sub(rf'^{key} = "[^"]*"', f'{key} = "{cfg.resolve(cfg[""][key])}"', text, count=1, flags=re.M)
     path = tmp_path / "run.toml"
-    path.write_text(text.replace('model = "valve_model.json"', f'model = "{cfg.resolve("valve_model.json")}"')
-                    .replace('plant_config = "plant.toml"', f'plant_config = "{cfg.resolve("plant.toml")}"'))
+    path.write_text(text)
     tight = load_run_config(path)
     res = breath_run(tight, model, "ff+kf", Modes(plant(tight), [(0.5, "ff+pid")]), 0.8)
     duty = res.columns["duty_pct"]
