@@ -163,3 +163,20 @@ def test_secured_monitor_reads_the_status_of_a_secured_loop(tmp_path):
                 p.wait(30)
     assert len(rows(good)) >= 5 and rows(good)[-1][1] == "running"
     assert rows(rogue) == []
+
+
+def test_an_in_process_run_with_listen_publishes_its_status(tmp_path):
+    """`valvectl run --listen EP` on the simulated valve publishes ctrl/status (with alarms) for a monitor."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    summ = tmp_path / "s.json"
+    with client_session(ep) as s:
+        sub = s.declare_subscriber("vent/valve/insp/ctrl/status", zenoh.handlers.RingChannel(1000))
+        run = valvectl("run", "--listen", ep, "--duration", "2", "--inject", "supply_bar=0.3@1.2",
+                       "--json", str(summ))
+        _, err = run.communicate(timeout=180)
+        assert run.returncode == 0, err
+        got = []
+        while (x := sub.try_recv()) is not None:
+            got.append(parse_status(x.payload.to_bytes()).value)
+    assert got and {"state", "controller", "ref_lpm", "flow_lpm", "duty_pct", "alarms", "faults"} <= set(got[-1])
+    assert any("supply_low" in g["alarms"] for g in got)

@@ -13,7 +13,7 @@ def add_arguments(p) -> None:
     p.add_argument("--reference", default=None, metavar="profile|zenoh|FILE.csv",
                    help="profile: the configured breath profile; zenoh: follow .../ref/flow; "
                         "FILE.csv: replay a recorded reference (t_s, ref_lpm)")
-    p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable; with --plant sim: publish ctrl/status and ctrl/error there)")
     p.add_argument("--connect", action="append", default=None, metavar="EP", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--certs", default=None, metavar="DIR",
                    help="TLS with mutual authentication and access control, as role controller "
@@ -78,7 +78,9 @@ def run(args) -> int:
     sup = supervisor(cfg, word, model)
 
     session = None
-    if plant_kind == "zenoh" or ref_kind == "zenoh":
+    # A simulated valve publishes the controller's error and status too when endpoints are given
+    # (`valvectl run --listen EP`: a monitor can watch an in-process run).
+    if plant_kind == "zenoh" or ref_kind == "zenoh" or args.listen or args.connect:
         from controller.transport.zenoh import EmbeddedValve, ZenohTransport, open_session
 
         session = open_session(cfg, args.listen, args.connect, role="controller", certs=args.certs)
