@@ -23,7 +23,10 @@ from .preprocess import preprocess
 from .recording import Recording
 
 #: Model kinds the comparison runs, in Table 1 order.
-COMPARE_KINDS: tuple[str, ...] = ("bouc-wen", "pi", "pi-asym", "preisach", "preisach-cont")
+COMPARE_KINDS: tuple[str, ...] = ("bouc-wen", "pi", "pi-asym", "pi-mod", "preisach", "preisach-cont")
+#: The inverse fed the recorded flow is scored over rows with at least this flow (L/min, DESIGN.md):
+#: below it a valve in its dead zone says nothing about the duty.
+INVERSE_MIN_FLOW_LPM = 2.0
 #: The paper fits its direct inverse with 25 thresholds (§2.3).
 INVERSE_N = 25
 
@@ -46,6 +49,9 @@ class ModelResult:
         In-sample prediction, one value per recording row.
     validation_prediction_lpm : ndarray or None
         Prediction on the validation recording, one value per its row.
+    inverse_on_measured_flow : Metrics or None
+        For invertible kinds, the model's inverse fed the recorded flow against the
+        recorded duty (%), over rows with flow >= :data:`INVERSE_MIN_FLOW_LPM`.
     """
 
     kind: str
@@ -55,6 +61,7 @@ class ModelResult:
     model: FittedModel
     prediction_lpm: np.ndarray = field(repr=False)
     validation_prediction_lpm: np.ndarray | None = field(default=None, repr=False)
+    inverse_on_measured_flow: Metrics | None = None
 
 
 @dataclass(frozen=True)
@@ -109,24 +116,31 @@ class Comparison:
             d = {"mae": res.in_sample.mae, "rmse": res.in_sample.rmse, "r": res.in_sample.r, "fit_s": res.fit_s}
             if res.validation is not None:
                 d["validation"] = res.validation.to_dict()
+            if res.inverse_on_measured_flow is not None:
+                m = res.inverse_on_measured_flow
+                d["inverse"] = {"on_measured_flow": {"duty_mae_pct": m.mae, "duty_rmse_pct": m.rmse, "r": m.r}}
             models[kind] = d
         return {"models": models, "inverse_pi": self.inverse.to_json()}
 
     def table(self) -> str:
         """Table 1 layout: in-sample and, when given, validation figures."""
-        head = f"{'model':<15}{'MAE':>8}{'RMSE':>8}{'r':>9}{'fit s':>8}"
+        head = f"{'model':<15}{'MAE':>8}{'RMSE':>8}{'r':>9}{'fit s':>8}{'inv %':>7}"
         if self.validation is not None:
             head += f"  |{'val MAE':>9}{'val RMSE':>10}{'val r':>9}"
         lines = [f"Table 1 on {self.recording.path}" + (f", validated on {self.validation.path}" if self.validation else ""),
                  head, "-" * len(head)]
         for kind, res in self.results.items():
             m = res.in_sample
-            line = f"{kind:<15}{m.mae:8.2f}{m.rmse:8.2f}{m.r:9.4f}{res.fit_s:8.2f}"
+            inv = res.inverse_on_measured_flow
+            line = f"{kind:<15}{m.mae:8.2f}{m.rmse:8.2f}{m.r:9.4f}{res.fit_s:8.2f}" + (
+                f"{inv.mae:7.2f}" if inv is not None else f"{'-':>7}")
             if res.validation is not None:
                 v = res.validation
                 line += f"  |{v.mae:9.2f}{v.rmse:10.2f}{v.r:9.4f}"
             lines.append(line)
         inv = self.inverse
+        lines.append(f"inv %: each invertible kind's inverse fed the recorded flow, duty MAE over rows with"
+                     f" flow >= {INVERSE_MIN_FLOW_LPM:g} L/min")
         lines.append(
             f"inverse PI (duty %): Eq. (7) MAE {inv.closed_form.mae:.2e} RMSE {inv.closed_form.rmse:.2e};"
             f" direct fit n={INVERSE_N} MAE {inv.direct_fit.mae:.3f} RMSE {inv.direct_fit.rmse:.3f};"
@@ -151,6 +165,16 @@ def inverse_check(model: FittedModel, rec: Recording) -> InverseCheck:
     return InverseCheck(closed, metrics(duty, model.x_scale.from_unit(d2_u)), metrics(duty, measured))
 
 
+def inverse_on_measured_flow(model: FittedModel, rec: Recording) -> Metrics | None:
+    """The model's inverse fed the recorded flow against the recorded duty (%), over rows with
+    flow >= :data:`INVERSE_MIN_FLOW_LPM`; None for a kind without an inverse."""
+    if model.inverse is None:
+        return None
+    duty, _ = model.inverse_predict(rec.flow_lpm)
+    rows = rec.flow_lpm >= INVERSE_MIN_FLOW_LPM
+    return metrics(rec.duty_pct[rows], duty[rows]) if rows.sum() > 1 else None
+
+
 def compare_response(
     rec: Recording,
     validate: Recording | None = None,
@@ -166,7 +190,8 @@ def compare_response(
         pred, _ = model.predict(rec.duty_pct)
         val = evaluate(model, validate.duty_pct, validate.flow_lpm) if validate is not None else None
         val_pred = model.predict(validate.duty_pct)[0] if validate is not None else None
-        results[kind] = ModelResult(kind, model.meta["fit_s"], metrics(rec.flow_lpm, pred), val, model, pred, val_pred)
+        results[kind] = ModelResult(kind, model.meta["fit_s"], metrics(rec.flow_lpm, pred), val, model, pred, val_pred,
+                                    inverse_on_measured_flow(model, rec))
     pi = results["pi"].model if "pi" in results else fit_recording("pi", rec)
     return Comparison(rec, validate, results, inverse_check(pi, rec), pi.inverse_predict(rec.flow_lpm)[0])
 

@@ -97,3 +97,21 @@ def test_model_file_round_trip(tmp_path):
     duty = np.array([0.0, 40.0, 80.0, 55.0, 100.0])
     np.testing.assert_array_equal(back.predict(duty)[0], m.predict(duty)[0])
     np.testing.assert_array_equal(back.inverse_predict([10.0, 60.0])[0], m.inverse_predict([10.0, 60.0])[0])
+
+
+def test_compare_reports_each_invertible_kinds_inverse_on_measured_flow():
+    """DESIGN.md compare JSON: models.KIND.inverse.on_measured_flow for invertible kinds, rows >= 2 L/min."""
+    from models.compare import compare_response
+    from models.recording import Recording
+
+    t = np.arange(3000) / 10.0
+    duty = 50.0 + 45.0 * np.sin(2 * np.pi * t / 60.0) * np.minimum(t / 100.0, 1.0)
+    m = FittedModel("pi-mod", MODEL, Scaling(50.0, 50.0), Scaling(68.0, 68.0), inverse=MODEL.inverse())
+    flow, _ = m.predict(duty)
+    rec = Recording("synthetic", {"t_s": t, "duty_pct": duty, "flow_lpm": flow})
+    out = compare_response(rec, kinds=("pi", "pi-mod", "bouc-wen")).to_json()["models"]
+    assert "inverse" not in out["bouc-wen"]
+    for kind in ("pi", "pi-mod"):
+        assert set(out[kind]["inverse"]["on_measured_flow"]) == {"duty_mae_pct", "duty_rmse_pct", "r"}
+    # the kind that made the flow inverts it best
+    assert out["pi-mod"]["inverse"]["on_measured_flow"]["duty_mae_pct"] < out["pi"]["inverse"]["on_measured_flow"]["duty_mae_pct"]
