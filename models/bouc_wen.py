@@ -53,7 +53,8 @@ def _rhs(h, s, beta, gamma, n):
 
 
 @njit(cache=True, inline="always")
-def _advance(h, dx, beta, gamma, n, max_sub):
+def integrate(h, dx, beta, gamma, n, max_sub):
+    """``h`` after an input increment ``dx`` (RK4 in substeps of at most ``max_sub``)."""
     m = int(np.ceil(abs(dx) / max_sub))
     if m == 0:
         return h
@@ -72,7 +73,7 @@ def _advance(h, dx, beta, gamma, n, max_sub):
 def _hysteretic(x, x_prev, h, beta, gamma, n, max_sub):
     out = np.empty(x.shape[0])
     for k in range(x.shape[0]):
-        h = _advance(h, x[k] - x_prev, beta, gamma, n, max_sub)
+        h = integrate(h, x[k] - x_prev, beta, gamma, n, max_sub)
         x_prev = x[k]
         out[k] = h
     return out, x_prev, h
@@ -132,7 +133,7 @@ class BoucWenModel:
 
     def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
         """One sample: integrate ``h`` over the increment, then the output."""
-        h = _advance(state[1], float(x) - state[0], self.beta, self.gamma, self.n, MAX_SUBSTEP)
+        h = integrate(state[1], float(x) - state[0], self.beta, self.gamma, self.n, MAX_SUBSTEP)
         return np.array([float(x), h]), self.a * float(x) + self.b * h + self.c
 
     def hysteretic(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -58,7 +58,8 @@ def relaxed_state(alpha: np.ndarray, beta: np.ndarray, x0: float) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def _update(alpha, beta, g, xk):
+def switch(alpha, beta, g, xk):
+    """Switch the relays ``g`` (+1/-1, in place) for input ``xk``; True when any changed."""
     changed = False
     for i in range(alpha.shape[0]):
         if xk >= alpha[i]:
@@ -84,7 +85,7 @@ def _weighted(alpha, beta, mu, x, state, by_alpha, by_beta):
         return out, g
     a_sorted = alpha[by_alpha]
     b_sorted = beta[by_beta]
-    _update(alpha, beta, g, x[0])
+    switch(alpha, beta, g, x[0])
     acc = 0.0
     for i in range(g.shape[0]):
         acc += mu[i] * g[i]
@@ -115,7 +116,7 @@ def _runs(alpha, beta, x, state):
     run = np.empty(x.shape[0], dtype=np.int64)
     n = -1
     for k in range(x.shape[0]):
-        if _update(alpha, beta, g, x[k]) or n < 0:
+        if switch(alpha, beta, g, x[k]) or n < 0:
             n += 1
             rows[n] = g
         run[k] = n
@@ -171,7 +172,7 @@ class PreisachModel:
     def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
         """One sample: switch the relays, then the weighted sum."""
         g = state.copy()
-        _update(self.alpha, self.beta, g, float(x))
+        switch(self.alpha, self.beta, g, float(x))
         return g, float(self.mu @ g) + self.offset
 
     def predict(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

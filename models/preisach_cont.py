@@ -91,6 +91,46 @@ def _completed(E, st, count, falling):
     return total
 
 
+@njit(cache=True, inline="always")
+def _staircase(st, count, d, xp, xk):
+    """Move the memory staircase from input ``xp`` to ``xk``: ``(count, direction, changed)``."""
+    changed = False
+    if xk != xp:
+        nd = 1.0 if xk > xp else -1.0
+        if nd != d:
+            if count == st.shape[0]:
+                count -= 2  # full: merge the innermost (smallest) loop away
+            st[count] = xp  # the reversal: a max when turning down, a min when turning up
+            count += 1
+            d = nd
+            changed = True
+        # Wiping-out: passing the previous extremum of the same kind erases the last pair.
+        while count >= 2 and ((d > 0 and count % 2 == 0 and xk >= st[count - 2])
+                              or (d < 0 and count % 2 == 1 and xk <= st[count - 2])):
+            count -= 2
+            changed = True
+    return count, d, changed
+
+
+@njit(cache=True, inline="always")
+def _value(E, st, count, d, base, xk):
+    """Output (before offset) for input ``xk`` on the staircase, from the completed terms ``base``."""
+    if d > 0:
+        last = _everett(E, xk, st[count - 1] if count > 0 else -2.0)
+    else:
+        last = -_everett(E, st[count - 1], xk)
+    return 2.0 * (base + last)
+
+
+@njit(cache=True)
+def sample(E, s, xk):
+    """One sample in place on a state ``[x_prev, direction, count, extrema...]``; the output before offset."""
+    st = s[_HEAD:]
+    count, d, _ = _staircase(st, int(s[2]), s[1], s[0], xk)
+    s[0], s[1], s[2] = xk, d, count
+    return _value(E, st, count, d, _completed(E, st, count, d < 0), xk)
+
+
 @njit(cache=True)
 def _run(E, x, state):
     s = state.copy()
@@ -102,29 +142,11 @@ def _run(E, x, state):
     base = _completed(E, st, count, d < 0)
     for k in range(x.shape[0]):
         xk = x[k]
-        if xk != xp:
-            nd = 1.0 if xk > xp else -1.0
-            changed = False
-            if nd != d:
-                if count == st.shape[0]:
-                    count -= 2  # full: merge the innermost (smallest) loop away
-                st[count] = xp  # the reversal: a max when turning down, a min when turning up
-                count += 1
-                d = nd
-                changed = True
-            # Wiping-out: passing the previous extremum of the same kind erases the last pair.
-            while count >= 2 and ((d > 0 and count % 2 == 0 and xk >= st[count - 2])
-                                  or (d < 0 and count % 2 == 1 and xk <= st[count - 2])):
-                count -= 2
-                changed = True
-            if changed:
-                base = _completed(E, st, count, d < 0)
-            xp = xk
-        if d > 0:
-            last = _everett(E, xk, st[count - 1] if count > 0 else -2.0)
-        else:
-            last = -_everett(E, st[count - 1], xk)
-        out[k] = 2.0 * (base + last)
+        count, d, changed = _staircase(st, count, d, xp, xk)
+        if changed:  # the completed terms change only with the staircase
+            base = _completed(E, st, count, d < 0)
+        xp = xk
+        out[k] = _value(E, st, count, d, base, xk)
     s[0] = xp
     s[1] = d
     s[2] = count

@@ -6,16 +6,17 @@ implementation. Per plant ``b`` and step ``k`` with commanded duty ``d``
 
 1. coil heating: ``d_eff = d / (1 + alpha (T - T_amb))`` (current = V d / R(T));
    ``T`` is first order towards ``T_amb + heat (d/55)^2``, exact for a held duty;
-2. forward PI, Eq. (1)-(4): the normalized duty, clamped to the identified range
-   [-1, 1] (the plunger is seated below it and fully open above it), drives the
-   play operators; with ``asymmetric_hysteresis = a`` the descending threshold
-   of every operator grows by ``a s h``, ``s = (u + 1)/2`` the position in the
-   range and ``h`` the half-width of the model's major loop at mid flow, so
-   the descending branch is ``1 + a`` times as wide at full flow (``a = 0``
-   is Eq. 1). One lift for all operators keeps the descending flow above the
-   symmetric model's: the operators that move on a descent are those of the
-   smallest thresholds, and their weights sum to a loading slope > 0 (Kuhnen);
-   below the identified range the flow closes along the model's mean gain;
+2. the forward model, any kind (``pi``, ``pi-asym``, ``pi-mod``: the play
+   operators of Eq. 1-4, an envelope, dead zones; ``preisach``,
+   ``preisach-cont``, ``bouc-wen``), each through its own module's per-sample
+   kernel: the normalized duty, clamped to the identified range [-1, 1] (the
+   plunger is seated below it and fully open above it), drives it; below the
+   range the flow closes along the model's mean gain. With
+   ``asymmetric_hysteresis = a`` the model's input first passes a play operator
+   of zero ascending and ``a s h`` descending threshold (``s = (u + 1)/2`` the
+   position in the range, ``h`` the half-width of the model's major loop at mid
+   flow), so the descending branch is ``1 + a`` times as wide at full flow; on a
+   PI this is exactly every operator's descending threshold grown by ``a s h``;
 3. creep: plus a state relaxing towards ``creep`` times the last
    reversal-to-reversal flow step;
 4. dead zone (closed below the cracking duty), no reverse flow;
@@ -42,10 +43,10 @@ import math
 import numpy as np
 from numba import njit
 
-from models import pi_asym, pi_mod, play
+from models import bouc_wen, pi_asym, pi_mod, play, preisach, preisach_cont
 
 # -- per-plant parameter vector P[b, :] (float64) --
-(XC, XH, YC, YH, OFF, GAIN_LO, A_ENV, P_ENV, FLOOR,
+(XC, XH, YC, YH, OFF, GAIN_LO, KIND, NM, NK, A_ENV, P_ENV, FLOOR,
  ASYM,
  HEAT_K, E_TH, T_AMB, ALPHA,
  P_NOM, P_MODEL_ABS, P_ATM, WANDER, E_W, SQ_W, DROOP,
@@ -53,11 +54,14 @@ from models import pi_asym, pi_mod, play
  DELAY_N, DELAY_F,
  CRACK, SAT, CREEP, E_CREEP,
  NOISE, SENSOR_OFFSET, SCALE, RANGE_LO, RANGE_HI,
- N_PARAMS) = range(39)
+ N_PARAMS) = range(42)
+
+# -- model kinds the kernel runs (P[b, KIND]) --
+KIND_PI, KIND_PREISACH, KIND_PREISACH_CONT, KIND_BOUC_WEN = range(4)
 
 # -- per-plant scalar state X[b, :] --
 (S_TEMP, S_WANDER, S_LAG1, S_LAG2, S_CREEP, S_CREEP_TARGET, S_Q_REV, S_DIR,
- S_U_PREV, S_Q_PREV, S_QV_PREV, N_STATE) = range(12)
+ S_U_PREV, S_Q_PREV, S_QV_PREV, S_U_BACK, N_STATE) = range(13)
 
 # -- outputs out[n, b, :] --
 (O_FLOW, O_TRUE, O_SUPPLY, O_TEMP, N_OUT) = range(5)
@@ -140,14 +144,153 @@ def normal(key, k):
             return xu
 
 
+# -- one inline helper per stage, in the order the physics runs (Pb: the plant's parameters,
+#    xb: its scalar states, both rows; each helper reads and writes only its own states) --
+
+@njit(cache=True, inline="always")
+def _coil(Pb, xb, d, settle):
+    """1. Coil heating: the duty the magnetics see, ``d / (1 + alpha (T - T_amb))``, and T before the step."""
+    temp = xb[S_TEMP]
+    d_eff = d / (1.0 + Pb[ALPHA] * (temp - Pb[T_AMB]))
+    if Pb[HEAT_K] > 0.0 and not settle:
+        drive = Pb[T_AMB] + Pb[HEAT_K] * (d / 55.0) ** 2
+        xb[S_TEMP] = drive + (temp - drive) * Pb[E_TH]
+    return d_eff, temp
+
+
+@njit(cache=True, inline="always")
+def _model(Pb, MPb, EVb, MSb, xb, uc):
+    """2. The forward model on the identified input range (normalized output, offset included).
+
+    The asymmetric effect first: a play operator of zero ascending and ``lift`` descending
+    threshold on the model's input (every kind's descending branch comes ``lift`` later; on a PI
+    it is exactly every operator's descending threshold widened by ``lift``).
+    """
+    lift = Pb[ASYM] * (uc + 1.0) * 0.5
+    u = play.eq1(xb[S_U_BACK], uc, 0.0, lift)
+    xb[S_U_BACK] = u
+    kind = int(Pb[KIND])
+    m = int(Pb[NM])
+    if kind == KIND_PI:
+        k = int(Pb[NK])
+        acc = play.bank_step(MPb[0:m], MPb[m:2 * m], pi_asym.down_scale(u, Pb[A_ENV], Pb[P_ENV]), MSb[0:m], u)
+        return max(pi_mod.dead_zone(MPb[2 * m:2 * m + k], MPb[2 * m + k:2 * m + 2 * k], acc) + Pb[OFF], Pb[FLOOR])
+    if kind == KIND_PREISACH:
+        g = MSb[0:m]
+        mu = MPb[2 * m:3 * m]
+        preisach.switch(MPb[0:m], MPb[m:2 * m], g, u)
+        acc = 0.0
+        for i in range(m):
+            acc += mu[i] * g[i]
+        return acc + Pb[OFF]
+    if kind == KIND_PREISACH_CONT:
+        return preisach_cont.sample(EVb, MSb, u) + Pb[OFF]
+    # Bouc-Wen: h integrated over the input increment
+    h = bouc_wen.integrate(MSb[1], u - MSb[0], MPb[0], MPb[1], MPb[2], bouc_wen.MAX_SUBSTEP)
+    MSb[0] = u
+    MSb[1] = h
+    return MPb[3] * u + MPb[4] * h + Pb[OFF]
+
+
+@njit(cache=True, inline="always")
+def _creep(Pb, xb, uc, q_model, settle):
+    """3. Creep: after each reversal the flow drifts on towards a fraction of the last reversal step."""
+    q = q_model
+    if Pb[CREEP] > 0.0:
+        if settle:
+            xb[S_Q_REV] = q_model
+        else:
+            du = uc - xb[S_U_PREV]
+            direction = 1.0 if du > 0.0 else (-1.0 if du < 0.0 else 0.0)
+            if direction != 0.0:
+                if xb[S_DIR] != 0.0 and direction != xb[S_DIR]:
+                    xb[S_CREEP_TARGET] = Pb[CREEP] * (xb[S_Q_PREV] - xb[S_Q_REV])
+                    xb[S_Q_REV] = xb[S_Q_PREV]
+                xb[S_DIR] = direction
+            zc = xb[S_CREEP]
+            q += zc
+            xb[S_CREEP] = xb[S_CREEP_TARGET] + (zc - xb[S_CREEP_TARGET]) * Pb[E_CREEP]
+    xb[S_U_PREV] = uc
+    xb[S_Q_PREV] = q_model
+    return q
+
+
+@njit(cache=True, inline="always")
+def _dead_zone(Pb, d_eff, q):
+    """4. Dead zone (closed below the cracking duty) and no reverse flow."""
+    return 0.0 if (d_eff < Pb[CRACK] or q < 0.0) else q
+
+
+@njit(cache=True, inline="always")
+def _supply(Pb, xb, key, k, q, settle):
+    """5. Supply: choked flow ∝ absolute upstream pressure; ``(flow, supply gauge bar)``."""
+    supply = Pb[P_NOM]
+    if Pb[WANDER] > 0.0:
+        supply += xb[S_WANDER] - Pb[DROOP] * xb[S_QV_PREV] ** 2
+        if not settle:
+            xb[S_WANDER] = xb[S_WANDER] * Pb[E_W] + Pb[WANDER] * Pb[SQ_W] * normal(key, k)
+    return q * (supply + Pb[P_ATM]) / Pb[P_MODEL_ABS], supply
+
+
+@njit(cache=True, inline="always")
+def _saturation(Pb, xb, q):
+    """6. Saturation at the full-open flow."""
+    if Pb[SAT] > 0.0 and q > Pb[SAT]:
+        q = Pb[SAT]
+    xb[S_QV_PREV] = q
+    return q
+
+
+@njit(cache=True, inline="always")
+def _dynamics(Pb, xb, q, settle):
+    """7. Valve dynamics: exact ZOH; the output is the state at the sample instant."""
+    order = int(Pb[ORDER])
+    if order == 0:
+        return q
+    if settle:
+        xb[S_LAG1] = q
+        xb[S_LAG2] = q
+    x1 = xb[S_LAG1]
+    x2 = xb[S_LAG2]
+    xb[S_LAG1] = Pb[PHI11] * x1 + Pb[G1] * q
+    xb[S_LAG2] = Pb[PHI21] * x1 + Pb[PHI22] * x2 + Pb[G2] * q
+    return x1 if order == 1 else x2
+
+
+@njit(cache=True, inline="always")
+def _delay(Pb, bufb, k, qv, settle):
+    """8. Transport delay: ring buffer indexed by the global step, linear interpolation in between."""
+    L = bufb.shape[0]
+    if L <= 1:
+        return qv
+    n_delay = int(Pb[DELAY_N])
+    if settle:
+        for i in range(L):
+            bufb[i] = qv
+    bufb[k % L] = qv
+    q_sensor = bufb[(k - n_delay) % L]
+    if Pb[DELAY_F] > 0.0:
+        q_sensor += Pb[DELAY_F] * (bufb[(k - n_delay - 1) % L] - q_sensor)
+    return q_sensor
+
+
+@njit(cache=True, inline="always")
+def _sensor(Pb, key, k, q_sensor):
+    """9. Sensor: offset, noise, quantization (SFM3300 scale factor), range."""
+    meas = q_sensor + Pb[SENSOR_OFFSET]
+    if Pb[NOISE] > 0.0:
+        meas += Pb[NOISE] * normal(key, k)
+    if Pb[SCALE] > 0.0:
+        meas = math.floor(meas * Pb[SCALE] + 0.5) / Pb[SCALE]
+    return min(max(meas, Pb[RANGE_LO]), Pb[RANGE_HI])
+
+
 @njit(cache=True)
-def advance(duty, k0, settle, P, R, W, H, G, keys, play_in, x_in, buf_in, play_out, x_out, buf_out, out):
+def advance(duty, k0, settle, P, MP, EV, keys, ms_in, x_in, buf_in, ms_out, x_out, buf_out, out):
     """Advance B plants N steps (out of place: ``*_in`` are read, ``*_out`` written).
 
-    Time runs in the outer loop and the plants in the inner loops, so the play
-    operators of all plants update as one vector while each plant still sums
-    its operators in the order of :mod:`models.play` (results identical to the
-    fitted model's ``predict``).
+    Each plant runs the stages above in order; plants never interact, so a plant's
+    results do not depend on the batch it runs in.
 
     Parameters
     ----------
@@ -160,143 +303,42 @@ def advance(duty, k0, settle, P, R, W, H, G, keys, play_in, x_in, buf_in, play_o
         static flow of ``duty`` (a plant at rest) and leave the slow states.
     P : ndarray, shape (B, N_PARAMS)
         Parameters (see the index constants).
-    R, W : ndarray, shape (m, B) or (m, 1)
-        Play thresholds and weights in normalized units (padding: w = 0);
-        one column when every plant has the same model.
-    H, G : ndarray, shape (k, B) or (k, 1)
-        Dead-zone superposition on the play output (``pi-mod``; ``[0], [1]``: identity; padding g = 0).
+    MP : ndarray, shape (B, p)
+        The forward model's arrays per plant (layout per kind: see ``plant_sim.plant``).
+    EV : ndarray, shape (B, n, n)
+        Everett meshes of ``preisach-cont`` plants (others: unused).
     keys : ndarray of uint64, shape (B, 2)
         Noise keys, sensor and supply wander (:func:`plant_keys`).
-    play_in, x_in, buf_in : ndarray
-        State: operator outputs (m, B), scalar states (B, N_STATE), delay line (B, L).
-    play_out, x_out, buf_out : ndarray
+    ms_in, x_in, buf_in : ndarray
+        State: model memory (B, s), scalar states (B, N_STATE), delay line (B, L).
+    ms_out, x_out, buf_out : ndarray
         Same shapes; receive the state after the last step.
     out : ndarray, shape (N, B, N_OUT)
         Measured flow, flow at the sensor without sensor errors (L/min),
         supply (bar gauge), coil temperature (°C).
     """
     N, B = duty.shape
-    m = R.shape[0]
-    per_plant = R.shape[1] > 1  # else one model shared by every plant
-    L = buf_in.shape[1]
+    ms_out[:] = ms_in
     x_out[:] = x_in
     buf_out[:] = buf_in
-    d_eff = np.empty(B)
-    u = np.empty(B)
-    uc = np.empty(B)
-    lift = np.empty(B)
-    scale = np.empty(B)
-    acc = np.empty(B)
-    temp = np.empty(B)
     for n in range(N):
         k = k0 + n
-        ops = play_in if n == 0 else play_out
-
-        # 1. coil heating: the magnetics see the current, V d / R(T)
         for b in range(B):
-            d = duty[n, b]
-            temp[b] = x_out[b, S_TEMP]
-            d_eff[b] = d / (1.0 + P[b, ALPHA] * (temp[b] - P[b, T_AMB]))
-            if P[b, HEAT_K] > 0.0 and not settle:
-                drive = P[b, T_AMB] + P[b, HEAT_K] * (d / 55.0) ** 2
-                x_out[b, S_TEMP] = drive + (temp[b] - drive) * P[b, E_TH]
-            u[b] = (d_eff[b] - P[b, XC]) / P[b, XH]
-            uc[b] = min(max(u[b], -1.0), 1.0)
-            lift[b] = P[b, ASYM] * (uc[b] + 1.0) * 0.5
-            scale[b] = pi_asym.down_scale(uc[b], P[b, A_ENV], P[b, P_ENV])
-            acc[b] = 0.0
-
-        # 2. forward model of the PI family on the identified input range: Eq. (1) (descending
-        # thresholds scaled by pi-asym's envelope, widened by the asymmetric effect), Eq. (4),
-        # pi-mod's dead-zone superposition and closed flow
-        for i in range(m):
-            for b in range(B):
-                j = b if per_plant else 0
-                yi = play.eq1(ops[i, b], uc[b], R[i, j], R[i, j] * scale[b] + lift[b])
-                play_out[i, b] = yi
-                acc[b] += W[i, j] * yi
-
-        for b in range(B):
-            j = b if per_plant else 0
-            y_model = max(pi_mod.dead_zone(H[:, j], G[:, j], acc[b]) + P[b, OFF], P[b, FLOOR])
-            q_model = y_model * P[b, YH] + P[b, YC]          # Eq. (4)
-            if u[b] < -1.0:
-                q_model += P[b, GAIN_LO] * (d_eff[b] - (P[b, XC] - P[b, XH]))
-
-            # 3. creep: drift on after each reversal, towards a fraction of the last step
-            q = q_model
-            if P[b, CREEP] > 0.0:
-                if settle:
-                    x_out[b, S_Q_REV] = q_model
-                else:
-                    du = uc[b] - x_out[b, S_U_PREV]
-                    direction = 1.0 if du > 0.0 else (-1.0 if du < 0.0 else 0.0)
-                    if direction != 0.0:
-                        if x_out[b, S_DIR] != 0.0 and direction != x_out[b, S_DIR]:
-                            x_out[b, S_CREEP_TARGET] = P[b, CREEP] * (x_out[b, S_Q_PREV] - x_out[b, S_Q_REV])
-                            x_out[b, S_Q_REV] = x_out[b, S_Q_PREV]
-                        x_out[b, S_DIR] = direction
-                    zc = x_out[b, S_CREEP]
-                    q += zc
-                    x_out[b, S_CREEP] = x_out[b, S_CREEP_TARGET] + (zc - x_out[b, S_CREEP_TARGET]) * P[b, E_CREEP]
-            x_out[b, S_U_PREV] = uc[b]
-            x_out[b, S_Q_PREV] = q_model
-
-            # 4. dead zone and no reverse flow
-            if d_eff[b] < P[b, CRACK] or q < 0.0:
-                q = 0.0
-
-            # 5. supply: choked flow ∝ absolute upstream pressure
-            supply = P[b, P_NOM]
-            if P[b, WANDER] > 0.0:
-                supply += x_out[b, S_WANDER] - P[b, DROOP] * x_out[b, S_QV_PREV] ** 2
-                if not settle:
-                    x_out[b, S_WANDER] = x_out[b, S_WANDER] * P[b, E_W] + P[b, WANDER] * P[b, SQ_W] * normal(keys[b, 1], k)
-            q *= (supply + P[b, P_ATM]) / P[b, P_MODEL_ABS]
-
-            # 6. saturation at the full-open flow
-            if P[b, SAT] > 0.0 and q > P[b, SAT]:
-                q = P[b, SAT]
-            x_out[b, S_QV_PREV] = q
-
-            # 7. valve dynamics (exact ZOH; output is the state at the sample instant)
-            order = int(P[b, ORDER])
-            if order > 0:
-                if settle:
-                    x_out[b, S_LAG1] = q
-                    x_out[b, S_LAG2] = q
-                x1 = x_out[b, S_LAG1]
-                x2 = x_out[b, S_LAG2]
-                qv = x1 if order == 1 else x2
-                x_out[b, S_LAG1] = P[b, PHI11] * x1 + P[b, G1] * q
-                x_out[b, S_LAG2] = P[b, PHI21] * x1 + P[b, PHI22] * x2 + P[b, G2] * q
-            else:
-                qv = q
-
-            # 8. transport delay: ring buffer indexed by the global step
-            if L > 1:
-                n_delay = int(P[b, DELAY_N])
-                if settle:
-                    for i in range(L):
-                        buf_out[b, i] = qv
-                buf_out[b, k % L] = qv
-                q_sensor = buf_out[b, (k - n_delay) % L]
-                if P[b, DELAY_F] > 0.0:
-                    q_sensor += P[b, DELAY_F] * (buf_out[b, (k - n_delay - 1) % L] - q_sensor)
-            else:
-                q_sensor = qv
-
-            # 9. sensor: offset, noise, quantization (SFM3300 scale factor), range
-            meas = q_sensor + P[b, SENSOR_OFFSET]
-            if P[b, NOISE] > 0.0:
-                meas += P[b, NOISE] * normal(keys[b, 0], k)
-            if P[b, SCALE] > 0.0:
-                meas = math.floor(meas * P[b, SCALE] + 0.5) / P[b, SCALE]
-            meas = min(max(meas, P[b, RANGE_LO]), P[b, RANGE_HI])
-
-            out[n, b, O_FLOW] = meas
+            Pb = P[b]
+            xb = x_out[b]
+            d_eff, temp = _coil(Pb, xb, duty[n, b], settle)
+            u = (d_eff - Pb[XC]) / Pb[XH]
+            uc = min(max(u, -1.0), 1.0)
+            q_model = _model(Pb, MP[b], EV[b], ms_out[b], xb, uc) * Pb[YH] + Pb[YC]
+            if u < -1.0:  # below the identified range: closing along the model's mean gain
+                q_model += Pb[GAIN_LO] * (d_eff - (Pb[XC] - Pb[XH]))
+            q = _creep(Pb, xb, uc, q_model, settle)
+            q = _dead_zone(Pb, d_eff, q)
+            q, supply = _supply(Pb, xb, keys[b, 1], k, q, settle)
+            q = _saturation(Pb, xb, q)
+            qv = _dynamics(Pb, xb, q, settle)
+            q_sensor = _delay(Pb, buf_out[b], k, qv, settle)
+            out[n, b, O_FLOW] = _sensor(Pb, keys[b, 0], k, q_sensor)
             out[n, b, O_TRUE] = q_sensor
             out[n, b, O_SUPPLY] = supply
-            out[n, b, O_TEMP] = temp[b]
-    if N == 0:
-        play_out[:] = play_in
+            out[n, b, O_TEMP] = temp

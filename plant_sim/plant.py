@@ -26,7 +26,6 @@ from typing import Annotated, Literal, NamedTuple, Sequence
 import msgspec
 import numpy as np
 
-from models import play as _play
 from models.model import FittedModel, load_model
 from models.recording import InputError
 from models.schema import Finite, NonNegative, Positive, convert
@@ -205,10 +204,10 @@ def load_plant(
 
 
 class PlantState(NamedTuple):
-    """State of B plants: step counter, play operators (m, B), scalar states (B, S), delay line (B, L)."""
+    """State of B plants: step counter, model memory (B, M), scalar states (B, S), delay line (B, L)."""
 
     k: int
-    play: np.ndarray
+    model: np.ndarray
     x: np.ndarray
     buf: np.ndarray
 
@@ -246,7 +245,7 @@ def _major_loop_half_width(core) -> float:
     negative, and ``sum(w r) / sum(w)`` then says nothing about the width.
     """
     u = np.linspace(-1.0, 1.0, 401)
-    _, s = core.predict(u[::-1], np.full(len(core.r), 1.0))  # come down from the top: on the major loop
+    _, s = core.predict(u[::-1], core.init(1.0))  # come down from the top: on the major loop
     up, s = core.predict(u, s)
     down, _ = core.predict(u[::-1], s)
     down = down[::-1]
@@ -256,16 +255,25 @@ def _major_loop_half_width(core) -> float:
     return float(max(half, 0.0))
 
 
-#: Model kinds the kernel runs: the PI family (play operators, Eq. 1-4), any envelope and dead zones.
-PLANT_KINDS = ("pi", "pi-asym", "pi-mod")
+#: Model kinds the simulated valve runs: every kind.
+PLANT_KINDS = ("pi", "pi-asym", "pi-mod", "preisach", "preisach-cont", "bouc-wen")
 
 
-def _family(core) -> dict:
-    """A PI-family core as the kernel's arrays: play ``r, w, y0``, dead zones ``h, g``, envelope ``a, p``, ``floor``."""
-    n = len(core.r)
-    return {"r": core.r, "w": core.w, "y0": getattr(core, "y0", np.full(n, np.nan)),
-            "h": getattr(core, "h", np.zeros(1)), "g": getattr(core, "g", np.ones(1)),
-            "a": getattr(core, "a", 0.0), "p": getattr(core, "p", 1.0), "floor": getattr(core, "floor", -np.inf)}
+def _model_arrays(core) -> tuple[int, int, int, np.ndarray, np.ndarray]:
+    """A core as the kernel sees it: ``(kind code, NM, NK, model row, Everett mesh)``.
+
+    Model rows: PI family ``[r, w, h, g]`` (m operators, k dead zones; ``h = [0], g = [1]``
+    without dead zones), Preisach ``[alpha, beta, mu]``, Bouc-Wen ``[beta, gamma, n, a, b]``;
+    the continuous Preisach's Everett mesh goes separately (NM = its size).
+    """
+    if core.kind in ("pi", "pi-asym", "pi-mod"):
+        h, g = getattr(core, "h", np.zeros(1)), getattr(core, "g", np.ones(1))
+        return K.KIND_PI, len(core.r), len(h), np.concatenate([core.r, core.w, h, g]), np.zeros((1, 1))
+    if core.kind == "preisach":
+        return K.KIND_PREISACH, len(core.mu), 0, np.concatenate([core.alpha, core.beta, core.mu]), np.zeros((1, 1))
+    if core.kind == "preisach-cont":
+        return K.KIND_PREISACH_CONT, core.n_mesh + 1, 0, np.zeros(0), core.everett
+    return K.KIND_BOUC_WEN, 0, 0, np.array([core.beta, core.gamma, core.n, core.a, core.b]), np.zeros((1, 1))
 
 
 def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
@@ -274,9 +282,11 @@ def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     v = np.zeros(K.N_PARAMS)
     xs, ys = p.model.x_scale, p.model.y_scale
     v[K.XC], v[K.XH], v[K.YC], v[K.YH] = xs.center, xs.half_range, ys.center, ys.half_range
-    v[K.OFF] = p.model.core.offset
-    fam = _family(p.model.core)
-    v[K.A_ENV], v[K.P_ENV], v[K.FLOOR] = fam["a"], fam["p"], fam["floor"]
+    core = p.model.core
+    v[K.OFF] = core.c if core.kind == "bouc-wen" else core.offset
+    v[K.KIND], v[K.NM], v[K.NK] = _model_arrays(core)[:3]
+    v[K.A_ENV], v[K.P_ENV] = (core.a, core.p) if core.kind == "pi-asym" else (0.0, 1.0)
+    v[K.FLOOR] = getattr(core, "floor", -np.inf)
     v[K.GAIN_LO] = ys.half_range / xs.half_range
     core = p.model.core
     v[K.ASYM] = p.asymmetric_hysteresis * _major_loop_half_width(core)
@@ -332,22 +342,13 @@ class BatchPlant:
         self.seeds = seeds
         self._keys = np.array([K.plant_keys(s) for s in seeds], dtype=np.uint64)
         self._P = np.array([_pack(p, self.rate_hz) for p in self.params])
-        fams = [_family(p.model.core) for p in self.params]
-        distinct = {tuple(np.asarray(f[k]).tobytes() for k in ("r", "w", "y0", "h", "g")) for f in fams}
-        m = max(len(f["r"]) for f in fams)
-        k = max(len(f["h"]) for f in fams)
-        # operator-major (m, B): the kernel updates operator i of every plant as one vector;
-        # one column when every plant has the same model
-        cols = len(self.params) if len(distinct) > 1 else 1
-        self._R = np.zeros((m, cols))
-        self._W = np.zeros((m, cols))  # padding operators have zero weight
-        self._Y0 = np.full((m, cols), np.nan)  # NaN: at rest at the first duty (models.play.init)
-        self._H = np.zeros((k, cols))
-        self._G = np.zeros((k, cols))  # padding dead zones have zero weight
-        for b, f in enumerate(fams[:cols]):
-            n, nk = len(f["r"]), len(f["h"])
-            self._R[:n, b], self._W[:n, b], self._Y0[:n, b] = f["r"], f["w"], f["y0"]
-            self._H[:nk, b], self._G[:nk, b] = f["h"], f["g"]
+        arrays = [_model_arrays(p.model.core) for p in self.params]
+        self._MP = np.zeros((B, max(len(a[3]) for a in arrays)))  # padding: never read
+        n_ev = max(a[4].shape[0] for a in arrays)
+        self._EV = np.zeros((B, n_ev, n_ev))
+        for b, a in enumerate(arrays):
+            self._MP[b, :len(a[3])] = a[3]
+            self._EV[b, :a[4].shape[0], :a[4].shape[1]] = a[4]
         n_del = self._P[:, K.DELAY_N].astype(int) + (self._P[:, K.DELAY_F] > 0)
         self._L = int(n_del.max()) + 1 if n_del.max() > 0 else 1
 
@@ -385,21 +386,26 @@ class BatchPlant:
         d0 = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (B,))
         P = self._P
         u0 = np.clip((d0 - P[:, K.XC]) / P[:, K.XH], -1.0, 1.0)
-        play = _play.init(self._R, u0[None, :], self._Y0)  # Eq. (3), (m, B)
+        # each model's own initial memory (Eq. 3 for the PI family, relaxed relays, staircase, h = 0)
+        memories = [p.model.core.init(float(u)) for p, u in zip(self.params, u0)]
+        ms = np.zeros((B, max(len(m) for m in memories)))
+        for b, m in enumerate(memories):
+            ms[b, :len(m)] = m
         x = np.zeros((B, K.N_STATE))
         x[:, K.S_TEMP] = P[:, K.T_AMB]
         x[:, K.S_U_PREV] = u0
-        state = PlantState(0, play, x, np.zeros((B, self._L)))
+        x[:, K.S_U_BACK] = u0
+        state = PlantState(0, ms, x, np.zeros((B, self._L)))
         new, _ = self._advance(state, d0[None, :].copy(), settle=True)
-        return PlantState(0, new.play, new.x, new.buf)
+        return PlantState(0, new.model, new.x, new.buf)
 
     def _advance(self, state: PlantState, duty: np.ndarray, settle: bool = False):
         """Run the kernel on ``duty`` of shape (N, B); outputs (N, B, N_OUT)."""
         out = np.empty(duty.shape + (K.N_OUT,))
-        play, x, buf = np.empty_like(state.play), np.empty_like(state.x), np.empty_like(state.buf)
-        K.advance(duty, state.k, settle, self._P, self._R, self._W, self._H, self._G, self._keys,
-                  state.play, state.x, state.buf, play, x, buf, out)
-        return PlantState(state.k + duty.shape[0], play, x, buf), out
+        ms, x, buf = np.empty_like(state.model), np.empty_like(state.x), np.empty_like(state.buf)
+        K.advance(duty, state.k, settle, self._P, self._MP, self._EV, self._keys,
+                  state.model, state.x, state.buf, ms, x, buf, out)
+        return PlantState(state.k + duty.shape[0], ms, x, buf), out
 
     def step(self, state: PlantState, duty_pct: np.ndarray) -> tuple[PlantState, PlantOutput]:
         """One step of every plant; ``duty_pct`` shape (B,) (or a scalar for all)."""
