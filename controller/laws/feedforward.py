@@ -36,6 +36,7 @@ the loop's safe state, not the feedforward's answer.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -105,6 +106,11 @@ class ModelBank:
     @property
     def batch(self) -> int:
         return self.r.shape[0]
+
+    @functools.cached_property
+    def arrays(self) -> tuple:
+        """The fields as one tuple, in field order: what the compiled kernels take."""
+        return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
 
 
 def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MARGIN_PCT) -> ModelBank:
@@ -190,34 +196,31 @@ def _solve(bk, j, state, work, q, closed):
 
 
 @njit(cache=True)
-def _step(bk, state, duty, out_state, flow):
+def _step(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, state, duty, out_state, flow):
+    # the bank's arrays as separate arguments: the dispatcher types arrays fast, tuples slowly
+    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin)
     for j in range(duty.shape[0]):
         out_state[j] = state[j]
         flow[j] = _forward(bk, j, out_state[j], duty[j])
 
 
 @njit(cache=True)
-def _invert(bk, state, ref, out):
-    closed_all = bk[13]
-    fc, fh, margin = bk[17], bk[18], bk[19]
+def _invert(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, state, ref, out):
+    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin)
     work = np.empty(state.shape[1])
     for j in range(ref.shape[0]):
         if ref[j] > 0.0:
-            out[j] = _solve(bk, j, state[j], work, ref[j], closed_all[j])
+            out[j] = _solve(bk, j, state[j], work, ref[j], closed[j])
         else:  # no flow asked: ready, just below the flow's onset on the present branch
-            onset = max(closed_all[j] * fh[j] + fc[j], 0.0)
+            onset = max(closed[j] * fh[j] + fc[j], 0.0)
             out[j] = _solve(bk, j, state[j], work, onset, -np.inf) - margin[j]
-
-
-def _arrays(bank: ModelBank) -> tuple:
-    return tuple(getattr(bank, f.name) for f in dataclasses.fields(ModelBank))
 
 
 def step(bank: ModelBank, state: np.ndarray, duty_pct) -> tuple[np.ndarray, np.ndarray]:
     """The forward model for every candidate: duty (%) in, ``(memory, flow L/min)`` out; pure."""
     duty = np.ascontiguousarray(np.broadcast_to(np.asarray(duty_pct, dtype=np.float64), (bank.batch,)))
     out, flow = np.empty_like(state), np.empty(bank.batch)
-    _step(_arrays(bank), state, duty, out, flow)
+    _step(*bank.arrays, state, duty, out, flow)
     return out, flow
 
 
@@ -229,7 +232,7 @@ def invert(bank: ModelBank, state: np.ndarray, ref_lpm) -> np.ndarray:
     """
     ref = np.ascontiguousarray(np.broadcast_to(np.asarray(ref_lpm, dtype=np.float64), (bank.batch,)))
     out = np.empty(bank.batch)
-    _invert(_arrays(bank), state, ref, out)
+    _invert(*bank.arrays, state, ref, out)
     return out
 
 
