@@ -32,6 +32,7 @@ VERBS = {
     "diagnose": ("controller.commands.diagnose", "find the physics a simulation leaves out"),
     "monitor": ("controller.commands.monitor", "live view of a running controller over Zenoh"),
     "certs": ("controller.commands.certs", "a site CA and one certificate per role, for --certs"),
+    "identify": ("controller.commands.identify", "characterize a valve over Zenoh and write a run configuration for it"),
 }
 
 

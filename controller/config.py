@@ -97,6 +97,18 @@ class Zenoh(_Section):
 class ValveNode(_Section):
     rate_hz: RateHz = 1000.0
     command_timeout_ms: Positive = 100.0  # no cmd/duty for this long -> the node closes its valve
+    aux_hz: NonNegative = 50.0            # meas/supply and meas/coil_temp rate (0: not published)
+
+
+class Identify(_Section):
+    """``valvectl identify`` (controller.identify): protocol length and its safety rules."""
+
+    duration_s: Annotated[float, msgspec.Meta(ge=10.0, le=86400.0)] = 600.0  # valve time of the protocol
+    flow_limit_lpm: Positive = 200.0      # measured flow above this -> safe duty, aborted
+    stale_ms: Positive = 250.0            # no measurement for this long -> safe duty, aborted
+    wait_s: Positive = 10.0               # for the valve's first measurement
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0  # step levels
+    tune_candidates: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 200  # the gain sweep on the identified valve
 
 
 class Alarms(_Section):
@@ -143,6 +155,7 @@ class RunFile(_Section):
     valve_node: ValveNode = msgspec.field(default_factory=ValveNode)
     alarms: Alarms = msgspec.field(default_factory=Alarms)
     fallback: Fallback = msgspec.field(default_factory=Fallback)
+    identify: Identify = msgspec.field(default_factory=Identify)
 
     def __post_init__(self):
         if self.controller not in control.MODES:

@@ -5,12 +5,23 @@ scheduling, :class:`controller.loop.RealClock`), applies the newest valid
 ``cmd/duty`` and publishes the measured flow every step. Its own command
 timeout closes the valve: a dead controller commands nothing, so after
 ``command_timeout_ms`` without a command the duty falls to 0 %.
+
+It also publishes the supply pressure and the coil temperature at
+``aux_hz`` (the plant's outputs; keys :data:`controller.transport.zenoh.AUX_KEYS`),
+and times the round trip from publishing a measurement to receiving the
+command computed from it (the command's ``meas_seq``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from array import array
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from .watchdog import Watchdog, in_range
+
+#: Publication times kept for the round trip, by ``seq`` modulo this (s of measurements at 1 kHz).
+SEQ_RING = 4096
 
 
 @dataclass
@@ -20,40 +31,60 @@ class NodeStats:
     commands: int = 0
     bad_commands: int = 0
     timeouts: int = 0  # times the command timeout closed the valve
+    round_trip_s: array = field(default_factory=lambda: array("d"))  # measurement published -> its command received
+
+    def to_json(self) -> dict:
+        """N.json of DESIGN.md."""
+        rt = np.frombuffer(self.round_trip_s, dtype=np.float64) if len(self.round_trip_s) else np.empty(0)
+        pct = {k: (float(np.percentile(rt, q)) * 1e6 if len(rt) else None) for k, q in (("p50", 50), ("p99", 99))}
+        return {"steps": self.steps, "overruns": self.overruns, "commands": self.commands,
+                "bad_commands": self.bad_commands, "command_timeouts": self.timeouts,
+                "round_trip_us": {**pct, "n": len(rt)}}
 
 
 class ValveNode:
-    """Parameters: a plant (stepped at ``rate_hz``), a transport with ``poll_command(accept)``
-    and ``publish_flow(t_s, flow)``, the command timeout (s) and a clock."""
+    """Parameters: a plant (stepped at ``rate_hz``), a transport with ``poll_command(accept) ->
+    (duty | None, n_bad, meas_seq | None)``, ``publish_flow(t_s, flow) -> seq`` and
+    ``publish_aux(t_s, {column: value})``, the command timeout (s), a clock and the rate of
+    the auxiliary measurements (Hz, 0: none)."""
 
-    def __init__(self, plant, transport, rate_hz: float, command_timeout_s: float, clock):
+    def __init__(self, plant, transport, rate_hz: float, command_timeout_s: float, clock, aux_hz: float = 0.0):
         self.plant, self.transport, self.rate_hz = plant, transport, rate_hz
         self.timeout_s, self.clock = command_timeout_s, clock
+        self.aux_every = max(1, int(round(rate_hz / aux_hz))) if aux_hz > 0 else 0
+        self.stats = NodeStats()
 
     def run(self, duration_s: float | None = None, stop=None) -> NodeStats:
         period = 1.0 / self.rate_hz
         accept = in_range(0.0, 100.0)
-        st = NodeStats()
+        st = self.stats = NodeStats()  # kept on the node: an interrupted run still reports
         state = self.plant.init(0.0)
         duty, closed = 0.0, True
         clock = self.clock
         t0 = clock.now()
         dog = Watchdog(self.timeout_s, 0.0)
         deadline = t0
+        sent_t = np.full(SEQ_RING, np.nan)  # publication time of measurement seq, at seq % SEQ_RING
+        sent_seq = np.full(SEQ_RING, -1, dtype=np.int64)
         while True:
             now = clock.wait_until(deadline)
             t = now - t0
-            v, bad = self.transport.poll_command(accept)
+            v, bad, meas_seq = self.transport.poll_command(accept)
             st.bad_commands += bad
             if v is not None:
                 duty, closed = v, False
                 st.commands += 1
                 dog.fresh(t)
+                if meas_seq is not None and meas_seq >= 0 and sent_seq[meas_seq % SEQ_RING] == meas_seq:
+                    st.round_trip_s.append(now - sent_t[meas_seq % SEQ_RING])
             elif dog.stale(t) and not closed:
                 duty, closed = 0.0, True
                 st.timeouts += 1
             state, out = self.plant.step(state, duty)
-            self.transport.publish_flow(t, out.flow_lpm)
+            seq = self.transport.publish_flow(t, out.flow_lpm)
+            sent_t[seq % SEQ_RING], sent_seq[seq % SEQ_RING] = clock.now(), seq
+            if self.aux_every and st.steps % self.aux_every == 0:
+                self.transport.publish_aux(t, {"supply_bar": out.supply_bar, "coil_temp_c": out.coil_temp_c})
             st.steps += 1
             if (duration_s is not None and t >= duration_s) or (stop is not None and stop()):
                 return st

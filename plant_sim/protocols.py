@@ -73,14 +73,23 @@ def paper_identification(
     amps = np.linspace(a0, half, k)
     extremes = np.concatenate([[center], center + amps * np.where(np.arange(k) % 2 == 0, 1.0, -1.0)])
     extremes = np.append(extremes, lo_pct)  # the paper's run ends at the bottom
+    return _fit(swings(extremes, max_rate_pct_s, rate_hz), n)
+
+
+def swings(extremes_pct, max_rate_pct_s: float, rate_hz: float) -> np.ndarray:
+    """Half cosines from each extreme to the next, each with peak slope ``max_rate_pct_s``, ending on the last.
+
+    A swing of ``s`` % takes ``pi |s| / (2 max_rate)`` seconds: smooth reversals, no
+    rate above the limit (the paper's sweep is made of them).
+    """
     pieces = []
-    for a, b in zip(extremes[:-1], extremes[1:]):
+    for a, b in zip(extremes_pct[:-1], extremes_pct[1:]):
         t_swing = math.pi * abs(b - a) / (2.0 * max_rate_pct_s)
         m = max(1, math.ceil(t_swing * rate_hz))  # ceil keeps the sampled slope within the limit
         phase = np.arange(m) / m
         pieces.append(a + (b - a) * (1.0 - np.cos(np.pi * phase)) / 2.0)
-    pieces.append([extremes[-1]])
-    return _fit(np.concatenate(pieces), n)
+    pieces.append([extremes_pct[-1]])
+    return np.concatenate(pieces)
 
 
 def steps(

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 def add_arguments(p) -> None:
     p.add_argument("--config", default="config/run.toml", metavar="RUN.toml",
-                   help="run configuration: [valve_node], [effects], [zenoh] (default %(default)s)")
+                   help="run configuration: its plant_config is the valve served, with [effects], [valve_node], "
+                        "[zenoh] (default %(default)s)")
     p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--connect", action="append", default=None, metavar="EP",
                    help="Zenoh endpoint to connect to (repeatable; default: the controller's listen endpoints)")
@@ -12,6 +13,8 @@ def add_arguments(p) -> None:
                    help="TLS with mutual authentication and access control, as role valve "
                         "(files of `valvectl certs DIR`)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default or 0: until interrupted)")
+    p.add_argument("--json", default=None, metavar="N.json",
+                   help='{"steps","overruns","commands","bad_commands","command_timeouts","round_trip_us":{"p50","p99"}}')
 
 
 def run(args) -> int:
@@ -23,6 +26,7 @@ def run(args) -> int:
     from controller.loop import RealClock, realtime
     from controller.transport.zenoh import ValveNodeTransport, open_session
     from controller.valve_node import ValveNode
+    from models.model import write_json_atomic
     from plant_sim.plant import Plant, load_plant
 
     if args.duration is not None and not args.duration >= 0:
@@ -38,7 +42,7 @@ def run(args) -> int:
     session = open_session(cfg, args.listen, args.connect, role="valve", certs=args.certs)
     transport = ValveNodeTransport(session, cfg["zenoh"]["id"])
     node = ValveNode(plant, transport, node_cfg["rate_hz"], node_cfg["command_timeout_ms"] * 1e-3,
-                     RealClock(cfg["loop"]["spin_us"] * 1e-6))
+                     RealClock(cfg["loop"]["spin_us"] * 1e-6), aux_hz=node_cfg["aux_hz"])
     try:
         with realtime(cfg["loop"]["rt_priority"]):
             st = node.run(duration, stop=lambda: bool(stopping))
@@ -47,6 +51,11 @@ def run(args) -> int:
             signal.signal(sig, handler)
         transport.close()
         session.close()
+    n = st.to_json()
+    rt = n["round_trip_us"]
     print(f"valve-node: {st.steps} steps, {st.overruns} overruns, {st.commands} commands, "
-          f"{st.bad_commands} bad, {st.timeouts} command timeouts")
+          f"{st.bad_commands} bad, {st.timeouts} command timeouts"
+          + (f", round trip p50 {rt['p50']:.0f} us p99 {rt['p99']:.0f} us" if rt["n"] else ""))
+    if args.json:
+        write_json_atomic(args.json, n)
     return 0

@@ -126,15 +126,38 @@ def _fields(obj: dict) -> tuple[int | None, float | None, str | None]:
     return seq, (None if t is None else float(t)), src
 
 
-def parse_number(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:
-    """A message whose ``value`` is a finite number (``ref/flow``, ``meas/flow``, ``cmd/duty``, ``ctrl/error``)."""
-    obj = decode(data, max_bytes)
+def _number(obj: dict) -> Message:
     if "value" not in obj:
         raise PayloadError("no value")
     v = obj["value"]
     if type(v) not in (int, float):  # bool is a subclass of int: excluded by the exact type test
         raise PayloadError(f"value is a {type(v).__name__}, not a number")
     return Message(float(v), *_fields(obj))
+
+
+def parse_number(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:
+    """A message whose ``value`` is a finite number (``ref/flow``, ``meas/flow``, ``cmd/duty``, ``ctrl/error``)."""
+    return _number(decode(data, max_bytes))
+
+
+class Command(NamedTuple):
+    """A ``cmd/duty`` message: a :class:`Message` plus ``meas_seq``, the ``seq`` of the measurement it
+    was computed from (None when absent), for the valve's round-trip timing."""
+
+    value: float
+    seq: int | None
+    t_s: float | None
+    src: str | None
+    meas_seq: int | None
+
+
+def parse_command(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Command:
+    """A ``cmd/duty`` message with its ``meas_seq`` (an integer when present)."""
+    obj = decode(data, max_bytes)
+    ms = obj.get("meas_seq")
+    if ms is not None and type(ms) is not int:
+        raise PayloadError("meas_seq is not an integer")
+    return Command(*_number(obj), ms)
 
 
 def parse_word(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:

@@ -24,12 +24,15 @@ import time
 import zenoh
 
 from .guard import SourceGuard
-from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_number, parse_word
+from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_command, parse_number, parse_word
 
 #: Samples Zenoh keeps per subscribed key between two polls, and the most one poll takes.
 RING = 16
 #: Time one poll of one key may spend on its samples, s (a 1 kHz step has 1000 us; the law needs ~100).
 DRAIN_BUDGET_S = 150e-6
+#: Auxiliary measurements a valve may publish, recording column -> key under ``vent/valve/{id}``
+#: (payloads as ``meas/flow``; ``value`` in the column's unit: supply pressure in bar gauge, coil temperature in °C).
+AUX_KEYS = {"supply_bar": "meas/supply", "coil_temp_c": "meas/coil_temp"}
 
 
 def session_config(cfg, listen: list[str] | None, connect: list[str] | None, role: str,
@@ -273,20 +276,33 @@ class ValveNodeTransport:
 
     def __init__(self, session, valve_id: str = "insp"):
         k = f"vent/valve/{valve_id}"
-        self.cmd_in = Inbox(session, f"{k}/cmd/duty")
+        self.cmd_in = Inbox(session, f"{k}/cmd/duty", parse=parse_command)
         self.meas = _Publisher(session, f"{k}/meas/flow", priority=zenoh.Priority.REAL_TIME, express=True,
                                congestion_control=zenoh.CongestionControl.DROP)
+        self.aux = {col: _Publisher(session, f"{k}/{key}", express=True, congestion_control=zenoh.CongestionControl.DROP)
+                    for col, key in AUX_KEYS.items()}
         self.src = str(session.zid())
         self.token = session.liveliness().declare_token(f"{k}/alive/valve")
 
-    def poll_command(self, accept) -> tuple[float | None, int]:
+    def poll_command(self, accept) -> tuple[float | None, int, int | None]:
+        """Newest accepted command, how many were rejected, and the ``meas_seq`` it carried (None if absent)."""
         m, bad, _ = self.cmd_in.poll(accept)
-        return (None if m is None else m.value), bad
+        return (None, bad, None) if m is None else (m.value, bad, m.meas_seq)
 
-    def publish_flow(self, t_s: float, flow_lpm: float) -> None:
+    def publish_flow(self, t_s: float, flow_lpm: float) -> int:
+        """Publish a measurement; returns its ``seq``."""
+        seq = self.meas.seq
         self.meas.put(t_s, flow_lpm, src=self.src)
+        return seq
+
+    def publish_aux(self, t_s: float, values: dict) -> None:
+        """Publish auxiliary measurements (:data:`AUX_KEYS` columns), with this node's ``src``."""
+        for col, v in values.items():
+            self.aux[col].put(t_s, v, src=self.src)
 
     def close(self) -> None:
         self.token.undeclare()
         self.meas.undeclare()
+        for p in self.aux.values():
+            p.undeclare()
         self.cmd_in.undeclare()

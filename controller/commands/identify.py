@@ -1,0 +1,147 @@
+"""Characterize a valve over Zenoh (open loop, safe limits), fit it, and write a run configuration for it.
+
+Writes to DIR: identification.csv (the recording, flushed as it is written),
+model.json, plant.toml, run.toml, sweep.toml, sweep.csv, report.md with its
+PNGs, and identify.json. Ctrl-C, SIGTERM, a stale measurement or a flow
+above [identify] flow_limit_lpm command the safe duty at once; identify.json
+then says "aborted": true (exit 130 for a signal, 1 otherwise).
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--config", default="config/run.toml", metavar="RUN.toml",
+                   help="run configuration: [identify], [limits], [loop], [zenoh] (default %(default)s)")
+    p.add_argument("--listen", action="append", default=None, metavar="EP", help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--connect", action="append", default=None, metavar="EP", help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="valve time of the protocol, s (default [identify] duration_s)")
+    p.add_argument("--certs", default=None, metavar="DIR", help="TLS certificates of `valvectl certs DIR` (role controller)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+
+
+def _bar(total: float, desc: str, unit: str):
+    from tqdm import tqdm
+
+    # shown only when stderr is a terminal (disable=None)
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, disable=None, leave=False,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} {unit} [{elapsed}<{remaining}]")
+
+
+def _session_config(cfg, args):
+    """The Zenoh session for the commanding role, with TLS and access control when --certs is given."""
+    from models.recording import InputError
+
+    from controller.transport.zenoh import open_session
+
+    if args.certs is None:
+        return open_session(cfg, args.listen, args.connect, role="controller")
+    try:
+        from controller.transport import security
+    except ImportError:
+        raise InputError("--certs: TLS is not available in this build") from None
+    return security.open_secure_session(cfg, args.listen, args.connect, "controller", args.certs)
+
+
+def run(args) -> int:
+    import dataclasses
+    import signal
+
+    from models.model import write_json_atomic
+    from models.recording import InputError, RecordingWriter
+
+    from controller.config import load_run_config
+    from controller.identify.link import Link
+    from controller.identify.protocol import Program, ProtocolParams
+    from controller.identify.report import summary_json
+    from controller.identify.session import Safety, record_columns, run_session
+    from controller.loop import RealClock, realtime
+
+    cfg = load_run_config(args.config)
+    idc, lim, lp = cfg["identify"], cfg["limits"], cfg["loop"]
+    duration = idc["duration_s"] if args.duration is None else args.duration
+    rate = lp["rate_hz"]
+    if not lim["duty_min_pct"] <= lp["safe_duty_pct"] <= lim["duty_max_pct"]:
+        raise InputError(f"{cfg.path}: key 'loop.safe_duty_pct': {lp['safe_duty_pct']:g} outside the duty limits")
+    params = ProtocolParams(duration, rate, lim["duty_min_pct"], lim["duty_max_pct"], 0.9 * idc["flow_limit_lpm"],
+                            idc["seed"])
+    safety = Safety(lim["duty_min_pct"], lim["duty_max_pct"], lp["safe_duty_pct"], idc["stale_ms"] * 1e-3,
+                    idc["flow_limit_lpm"])
+    out = args.output
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"-o {out}: cannot create the folder ({exc.strerror})") from None
+
+    session = _session_config(cfg, args)
+    link = Link(session, cfg["zenoh"]["id"], safety.stale_s)
+    writer = None
+    stopping: list[bool] = []
+    previous = {}
+    try:
+        aux = link.wait_for_valve(idc["wait_s"])
+        link.claim()
+        previous = {sig: signal.signal(sig, lambda n, _f: stopping.append(n)) for sig in (signal.SIGTERM, signal.SIGINT)}
+        writer = RecordingWriter(os.path.join(out, "identification.csv"), record_columns(aux))
+        bar = _bar(round(duration), "identify", "s")
+
+        def progress(fraction, phase):
+            bar.n = fraction * duration
+            bar.set_description(phase, refresh=False)
+            bar.refresh()
+
+        with realtime(lp["rt_priority"]):
+            res = run_session(Program(params), link, safety, rate, RealClock(lp["spin_us"] * 1e-6), writer,
+                              stop=lambda: bool(stopping), progress=progress, aux=aux)
+        bar.close()
+    finally:
+        if writer is not None:
+            writer.close()
+        link.close()
+        session.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    if res.aborted:
+        write_json_atomic(os.path.join(out, "identify.json"), summary_json(res))
+        sys.stderr.write(f"valvectl identify: aborted ({res.message or res.reason}) after {res.duration_s:.1f} s: valve at the "
+                         f"safe duty {safety.safe_duty_pct:g} %; recording {writer.path} complete to that point\n")
+        return 130 if res.reason == "interrupted" else 1
+
+    from controller.identify.dynamics import dynamics_from_steps
+    from controller.identify.estimate import estimate
+    from controller.identify.report import write_report
+    from controller.identify.tune import plant_model, tune
+    from models.fitting import KINDS
+
+    c = res.columns
+    try:
+        dyn = dynamics_from_steps(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase == "steps")
+    except ValueError as exc:
+        sys.stderr.write(f"valvectl identify: cannot read the lag and delay: {exc}\n")
+        return 1
+    # the loop's convention ([valve] delay_s, plant transport_delay): one period less than command to reading
+    dyn = dataclasses.replace(dyn, delay_s=max(dyn.delay_s - 1.0 / rate, 0.0))
+    bar = _bar(len(KINDS), "fit", "kinds")
+    est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct, dyn, rate,
+                   progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)))
+    bar.close()
+    pi = est.results["pi"].model if "pi" in est.results else None
+    plant = plant_model(est.model, lambda: pi)
+    if plant is None:
+        sys.stderr.write("valvectl identify: the simulated plant cannot run any fitted kind\n")
+        return 1
+    tuning = tune(cfg, out, est.model, plant, dyn.tau_s, dyn.delay_s, dyn.noise_lpm, idc["seed"],
+                  idc["tune_candidates"])
+    report = write_report(out, res, est, dyn, tuning, rate)
+    summ = summary_json(res, est, dyn, tuning)
+    write_json_atomic(os.path.join(out, "identify.json"), summ)
+    v = summ["validation"]
+    print(f"identified in {res.duration_s:.0f} s: range {res.working_range.lo_pct:.1f}..{res.working_range.hi_pct:.1f} %, "
+          f"tau {dyn.tau_s * 1e3:.1f} ± {dyn.tau_se_s * 1e3:.1f} ms, delay {dyn.delay_s * 1e3:.1f} ± "
+          f"{dyn.delay_se_s * 1e3:.1f} ms; model {est.chosen} (validation MAE {v['mae']:.2f}, RMSE {v['rmse']:.2f} "
+          f"L/min); controller {tuning.controller} -> {tuning.run_path}, {report}")
+    return 0

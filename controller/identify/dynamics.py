@@ -1,0 +1,218 @@
+"""The valve's lag and delay from step tests, with their uncertainty.
+
+Each step of the duty is fitted with a first-order lag behind a pure delay
+(the structure of the valve's plunger and flow lag and its transport delay,
+as ``valve_dynamics`` and ``transport_delay`` of DESIGN.md)::
+
+    y(t) = y0 + dy (1 - exp(-(t - t0 - delay) / tau))   for t > t0 + delay, else y0
+
+by nonlinear least squares (``y0, dy, tau, delay``), started from the 10 %
+and 63 % crossing times (``t10 = delay + 0.105 tau``, ``t63 = delay + tau``).
+The hysteresis answers a held step at once (it is rate independent), so a
+step's transient is the dynamics alone. Steps too small to read against the
+sensor noise (``|dy| < 20 sigma``) are skipped.
+
+The valve's figures are the medians over the steps (robust to a step spoilt
+by a disturbance); their standard error is ``1.2533 s / sqrt(n)`` (the
+median's, for a normal spread ``s`` over the steps), and each step carries
+the standard errors of its own fit (from the Jacobian).
+
+``t0`` is the time of the row that commanded the step, so the delay is
+the command-to-measurement delay a loop on the same transport sees
+(transport latency included).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+#: A step must change the flow by this many noise standard deviations to be read.
+MIN_SNR = 20.0
+
+
+@dataclass(frozen=True)
+class StepFit:
+    """One step's fit.
+
+    Attributes
+    ----------
+    t0_s : float
+        Time the step was commanded, s.
+    duty_from_pct, duty_to_pct : float
+    y0_lpm, dy_lpm : float
+        Flow before the step and its change, L/min.
+    tau_s, delay_s : float
+        Lag and delay, s.
+    tau_se_s, delay_se_s : float
+        Their standard errors from this fit, s.
+    rmse_lpm : float
+        Residual of the fit, L/min.
+    """
+
+    t0_s: float
+    duty_from_pct: float
+    duty_to_pct: float
+    y0_lpm: float
+    dy_lpm: float
+    tau_s: float
+    delay_s: float
+    tau_se_s: float
+    delay_se_s: float
+    rmse_lpm: float
+
+    def response(self, t_s: np.ndarray) -> np.ndarray:
+        """The fitted response at ``t_s``, L/min."""
+        return step_model(t_s - self.t0_s, self.y0_lpm, self.dy_lpm, self.tau_s, self.delay_s)
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """The valve's lag and delay over all steps read.
+
+    Attributes
+    ----------
+    tau_s, delay_s : float
+        Medians over the steps, s.
+    tau_se_s, delay_se_s : float
+        Standard errors of the medians, s.
+    tau_sd_s, delay_sd_s : float
+        Spread over the steps (standard deviation), s.
+    noise_lpm : float
+        Sensor noise, standard deviation per reading, L/min.
+    steps : tuple of StepFit
+    """
+
+    tau_s: float
+    delay_s: float
+    tau_se_s: float
+    delay_se_s: float
+    tau_sd_s: float
+    delay_sd_s: float
+    noise_lpm: float
+    steps: tuple
+
+    def to_json(self) -> dict:
+        return {"tau_s": self.tau_s, "delay_s": self.delay_s, "tau_se_s": self.tau_se_s,
+                "delay_se_s": self.delay_se_s, "tau_sd_s": self.tau_sd_s, "delay_sd_s": self.delay_sd_s,
+                "noise_lpm": self.noise_lpm, "steps": len(self.steps)}
+
+
+def step_model(dt_s: np.ndarray, y0: float, dy: float, tau_s: float, delay_s: float) -> np.ndarray:
+    """First-order lag behind a pure delay, for a step at ``dt_s = 0``."""
+    x = np.maximum(dt_s - delay_s, 0.0)
+    return y0 + dy * (1.0 - np.exp(-x / tau_s))
+
+
+def noise_std(flow_lpm: np.ndarray) -> float:
+    """Sensor noise from second differences, robust to steps: ``MAD / 0.6745 / sqrt(6)``."""
+    d2 = np.diff(np.asarray(flow_lpm, dtype=np.float64), 2)
+    if len(d2) == 0:
+        return 0.0
+    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / math.sqrt(6.0))
+
+
+def step_rows(duty_pct: np.ndarray, min_change_pct: float = 0.5) -> np.ndarray:
+    """Rows where the duty jumps by more than ``min_change_pct`` from the row before."""
+    return np.flatnonzero(np.abs(np.diff(duty_pct)) > min_change_pct) + 1
+
+
+def fit_step(t_s: np.ndarray, flow_lpm: np.ndarray, t0_s: float, noise_lpm: float) -> StepFit | None:
+    """Fit one step over ``t_s`` (from a little before ``t0_s`` to the next step); None if unreadable."""
+    pre = flow_lpm[t_s < t0_s]
+    post_t, post = t_s[t_s >= t0_s] - t0_s, flow_lpm[t_s >= t0_s]
+    if len(pre) < 3 or len(post) < 20:
+        return None
+    hold = post_t[-1]
+    y0 = float(np.mean(pre))
+    y1 = float(np.mean(post[post_t > 0.7 * hold]))
+    dy = y1 - y0
+    if abs(dy) < MIN_SNR * max(noise_lpm, 1e-3):
+        return None
+    frac = (post - y0) / dy
+    w = max(1, len(post) // 200)
+    frac_s = np.convolve(frac, np.ones(w) / w, mode="same")
+    t10 = post_t[int(np.argmax(frac_s > 0.1))]
+    t63 = post_t[int(np.argmax(frac_s > 0.632))]
+    tau0 = max((t63 - t10) / 0.895, 1e-3)
+    d0 = max(t63 - tau0, 0.0)
+
+    def resid(p):
+        return step_model(post_t, p[0], p[1], p[2], p[3]) - post
+
+    lo = [-np.inf, -np.inf, 1e-4, 0.0]
+    hi = [np.inf, np.inf, hold / 2.0, hold / 2.0]
+    p0 = np.clip([y0, dy, tau0, d0], np.array(lo) + 1e-9, np.array(hi) - 1e-9)
+    sol = least_squares(resid, p0, bounds=(lo, hi), x_scale=[abs(dy), abs(dy), tau0, max(tau0, 1e-3)])
+    r = sol.fun
+    dof = max(len(r) - 4, 1)
+    s2 = float(r @ r) / dof
+    try:
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * s2
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        se = np.full(4, np.nan)
+    y0f, dyf, tau, d = (float(v) for v in sol.x)
+    return StepFit(float(t0_s), math.nan, math.nan, y0f, dyf, tau, d, float(se[2]), float(se[3]), math.sqrt(s2))
+
+
+def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, rows: np.ndarray) -> Dynamics:
+    """Lag and delay from every readable step among ``rows`` (a boolean mask of the step-test rows).
+
+    Raises
+    ------
+    ValueError
+        When no step could be read.
+    """
+    noise = noise_std(flow_lpm[rows])
+    idx = np.flatnonzero(rows)
+    starts = [int(k) for k in step_rows(duty_pct) if rows[k] and k > idx[0]]
+    fits = []
+    for j, k in enumerate(starts):
+        end = starts[j + 1] if j + 1 < len(starts) else int(idx[-1]) + 1
+        a = max(k - max(3, (end - k) // 20), 0)
+        f = fit_step(t_s[a:end], flow_lpm[a:end], float(t_s[k]), noise)
+        if f is not None:
+            fits.append(StepFit(f.t0_s, float(duty_pct[k - 1]), float(duty_pct[k]), *(getattr(f, n) for n in (
+                "y0_lpm", "dy_lpm", "tau_s", "delay_s", "tau_se_s", "delay_se_s", "rmse_lpm"))))
+    if not fits:
+        raise ValueError("no step could be read (too small against the noise, or too short)")
+    tau = np.array([f.tau_s for f in fits])
+    d = np.array([f.delay_s for f in fits])
+    n = len(fits)
+    sd_t = float(np.std(tau, ddof=1)) if n > 1 else float(fits[0].tau_se_s)
+    sd_d = float(np.std(d, ddof=1)) if n > 1 else float(fits[0].delay_se_s)
+    return Dynamics(float(np.median(tau)), float(np.median(d)), 1.2533 * sd_t / math.sqrt(n),
+                    1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits))
+
+
+def steps_plot(dyn: Dynamics, t_s: np.ndarray, flow_lpm: np.ndarray, n: int = 6, ax=None):
+    """Up to ``n`` steps (both directions), measured and fitted, time from each step's command; the figure."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(8, 4.5))
+    else:
+        fig = ax.figure
+    ups = [f for f in dyn.steps if f.dy_lpm > 0]
+    downs = [f for f in dyn.steps if f.dy_lpm < 0]
+    chosen = ups[: (n + 1) // 2] + downs[: n // 2]
+    span = 8.0 * dyn.tau_s + 3.0 * dyn.delay_s
+    for i, f in enumerate(chosen):
+        sel = (t_s >= f.t0_s - 0.2 * span) & (t_s <= f.t0_s + span)
+        dt = t_s[sel] - f.t0_s
+        color = f"C{i % 10}"
+        ax.plot(dt * 1e3, (flow_lpm[sel] - f.y0_lpm) / f.dy_lpm, ".", ms=2, color=color, alpha=0.5)
+        ax.plot(dt * 1e3, (f.response(t_s[sel]) - f.y0_lpm) / f.dy_lpm, color=color, lw=1.2,
+                label=f"{f.duty_from_pct:.1f}->{f.duty_to_pct:.1f} %: tau {f.tau_s * 1e3:.1f} ms, delay {f.delay_s * 1e3:.1f} ms")
+    ax.axvline(dyn.delay_s * 1e3, color="k", ls=":", lw=0.8)
+    ax.axvline((dyn.delay_s + dyn.tau_s) * 1e3, color="k", ls="--", lw=0.8)
+    ax.set_xlabel("time since the step was commanded (ms)")
+    ax.set_ylabel("normalized flow change")
+    ax.set_title(f"steps: tau {dyn.tau_s * 1e3:.1f} ± {dyn.tau_se_s * 1e3:.1f} ms, "
+                 f"delay {dyn.delay_s * 1e3:.1f} ± {dyn.delay_se_s * 1e3:.1f} ms ({len(dyn.steps)} steps)")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,179 @@
+"""Every model kind fitted on the sweep, validated on the held-out steps; the feedforward's kind chosen.
+
+The hysteresis models are static (rate independent) and the valve puts its
+lag and delay behind them, so:
+
+- each kind is fitted (:func:`models.fitting.fit_model`, the paper's
+  preprocessing) on the sweep and reversal rows, from the sweep's first row in
+  the working range, against the flow read ``tau + delay`` later (a
+  first-order lag of a slow input is that input delayed by ``tau``);
+- it is validated on the step rows, never fitted, through the lag and delay
+  the steps gave (:mod:`models.diagnose.effects`), driven from the first
+  fitted row so its memory is the valve's;
+- the feedforward is the invertible kind with the least validation RMSE among
+  those the feedforward law can run (:func:`feedforward_ready`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from models.diagnose.effects import delayed, first_order_lag
+from models.fitting import KINDS, fit_model
+from models.metrics import Metrics, metrics
+from models.model import FittedModel
+
+from .dynamics import Dynamics
+
+FIT_PHASES = ("sweep", "reversals")
+VALIDATION_PHASE = "steps"
+
+
+@dataclass(frozen=True)
+class KindResult:
+    """One row of Table 1 for the identification.
+
+    Attributes
+    ----------
+    kind : str
+    fit_s : float
+        Wall time of the fit, s.
+    in_sample : Metrics
+        On the fitted rows, through the lag and delay (L/min).
+    validation : Metrics
+        On the step rows (L/min).
+    invertible : bool
+    model : FittedModel
+    """
+
+    kind: str
+    fit_s: float
+    in_sample: Metrics
+    validation: Metrics
+    invertible: bool
+    model: FittedModel = field(repr=False)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """All kinds and the chosen one; rows (of the recording) fitted and validated."""
+
+    results: dict
+    chosen: str
+    first_row: int
+    fit_rows: np.ndarray
+    validation_rows: np.ndarray
+
+    @property
+    def model(self) -> FittedModel:
+        return self.results[self.chosen].model
+
+    def to_json(self) -> dict:
+        return {k: {"mae": r.in_sample.mae, "rmse": r.in_sample.rmse, "r": r.in_sample.r, "fit_s": r.fit_s,
+                    "validation": r.validation.to_dict(), "invertible": r.invertible}
+                for k, r in self.results.items()}
+
+
+def feedforward_ready(model: FittedModel) -> bool:
+    """Whether the loop's feedforward law (:mod:`controller.laws.feedforward`) can run this model."""
+    from controller.laws import feedforward as ffw
+
+    if model.inverse is None:
+        return False
+    try:
+        ffw.inverse_bank(model), ffw.forward_bank(model)
+    except (ValueError, AttributeError, TypeError):
+        return False
+    return True
+
+
+def predict_flow(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, tau_s: float, delay_s: float) -> np.ndarray:
+    """The model's flow behind the valve's lag and delay (a loop's view: one period more), L/min.
+
+    The duty is held to the model's identified input range, as the valve's
+    plunger is seated below it and fully open above it.
+    """
+    lo = model.x_scale.center - model.x_scale.half_range
+    hi = model.x_scale.center + model.x_scale.half_range
+    q, _ = model.predict(np.clip(duty_pct, lo, hi))
+    return delayed(first_order_lag(q, rate_hz, tau_s), rate_hz, delay_s)
+
+
+def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase: np.ndarray, lo_pct: float,
+             dyn: Dynamics, rate_hz: float, kinds: Sequence[str] = KINDS,
+             progress: Callable[[str], None] | None = None) -> Estimate:
+    """Fit ``kinds`` on the sweep and reversals, validate on the steps, choose the feedforward's kind.
+
+    Parameters
+    ----------
+    t_s, duty_pct, flow_lpm, phase : ndarray
+        The identification recording and each row's protocol phase.
+    lo_pct : float
+        Cracking duty of the working range: fitting starts where the sweep reaches it.
+    dyn : Dynamics
+        Lag and delay from the steps (``delay_s`` in the loop's convention: one period less
+        than the command-to-measurement delay).
+    rate_hz : float
+        The recording's step rate, Hz.
+    """
+    fit_mask = np.isin(phase, FIT_PHASES)
+    sweep_rows = np.flatnonzero(phase == "sweep")
+    first = int(sweep_rows[np.argmax(duty_pct[sweep_rows] >= lo_pct)])
+    fit_mask[:first] = False
+    val_mask = phase == VALIDATION_PHASE
+    fit_idx = np.flatnonzero(fit_mask)
+    lag_s = dyn.tau_s + dyn.delay_s + 1.0 / rate_hz
+    ahead = np.interp(t_s[fit_idx] + lag_s, t_s, flow_lpm)
+    span = slice(first, int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s))
+    results = {}
+    for kind in kinds:
+        if progress:
+            progress(kind)
+        model = fit_model(kind, t_s[fit_idx], duty_pct[fit_idx], ahead, source="identification")
+        pred = np.full(len(t_s), np.nan)
+        pred[span] = predict_flow(model, duty_pct[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+        results[kind] = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
+                                   metrics(flow_lpm[val_mask], pred[val_mask]), model.inverse is not None, model)
+    invertible = [k for k, r in results.items() if feedforward_ready(r.model)]
+    if not invertible:
+        raise ValueError(f"the feedforward can run none of the kinds fitted ({', '.join(kinds)})")
+    chosen = min(invertible, key=lambda k: results[k].validation.rmse)
+    return Estimate(results, chosen, first, fit_idx, np.flatnonzero(val_mask))
+
+
+def table(est: Estimate) -> str:
+    """Table 1 as Markdown: in-sample and validation figures per kind, the chosen one marked."""
+    lines = ["| model | MAE | RMSE | r | validation MAE | validation RMSE | validation r | fit s | invertible |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | :---: |"]
+    for k, r in est.results.items():
+        m, v = r.in_sample, r.validation
+        name = f"**{k}** (feedforward)" if k == est.chosen else k
+        lines.append(f"| {name} | {m.mae:.2f} | {m.rmse:.2f} | {m.r:.4f} | {v.mae:.2f} | {v.rmse:.2f} | {v.r:.4f} "
+                     f"| {r.fit_s:.1f} | {'yes' if r.invertible else 'no'} |")
+    return "\n".join(lines)
+
+
+def loops_plot(est: Estimate, duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_hz: float, dyn: Dynamics, ax=None):
+    """Flow against duty on the fitted rows: measured, and the chosen model behind the lag and delay; the figure."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(7, 5))
+    else:
+        fig = ax.figure
+    span = slice(est.first_row, len(duty_pct))
+    pred = predict_flow(est.model, duty_pct[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+    idx = est.fit_rows - est.first_row
+    step = max(1, len(idx) // 20000)
+    ax.plot(duty_pct[est.fit_rows][::step], flow_lpm[est.fit_rows][::step], ".", ms=1, color="tab:orange",
+            alpha=0.4, label="measured")
+    ax.plot(duty_pct[est.fit_rows][::step], pred[idx][::step], color="tab:blue", lw=0.6,
+            label=f"{est.chosen} (fitted)")
+    ax.set_xlabel("duty cycle (%)")
+    ax.set_ylabel("flow (L/min)")
+    ax.set_title("major and minor loops: sweep and reversals")
+    ax.legend(loc="upper left", markerscale=6)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,179 @@
+"""From the identification to a run configuration: the valve as a plant, a short gain sweep, ``run.toml``.
+
+Written to the output folder:
+
+- ``plant.toml``: the identified valve as a simulated plant (the model, its
+  lag and delay as ``valve_dynamics`` and ``transport_delay``, the sensor
+  noise measured on the steps), so ``valvectl run --plant sim`` and sweeps
+  drive a twin of this valve;
+- ``run.toml``: the input run configuration with this valve's feedforward
+  model, ``[valve] tau_s, delay_s`` and the gains of the sweep;
+- ``sweep.toml`` and ``sweep.csv``: the gain sweep (:mod:`controller.sweep`)
+  on that plant and on variants a real valve drifts to (lag and delay 30 %
+  longer or shorter, supply 10 % low), ranked by the worst IAE over them.
+  Every controller word gets its best gains, and the run's controller is the
+  best word.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+from dataclasses import dataclass
+
+from models.model import FittedModel, save_model
+from models.recording import InputError
+
+#: Random candidates per controller word in the short sweep (of 200; scaled to ``[identify] tune_candidates``),
+#: and their ranges.
+SWEEP_CANDIDATES = {
+    "pid": (60, {"pid.kp": {"log": [0.02, 1.0]}, "pid.ki": {"log": [0.5, 100.0]}, "pid.kd": {"uniform": [0.0, 0.004]}}),
+    "ff+pid": (60, {"ff_pid.kp": {"log": [0.02, 1.0]}, "ff_pid.ki": {"log": [0.5, 100.0]},
+                    "ff_pid.kd": {"uniform": [0.0, 0.003]}}),
+    "ff+kf": (80, {"kf.q_flow_lpm": {"log": [0.3, 30.0]}, "kf.q_bias_lpm": {"log": [0.002, 0.5]}}),
+}
+SWEEP_DURATION_S = 6.0
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """The run configuration written and the sweep behind it.
+
+    Attributes
+    ----------
+    run_path : str
+    controller : str
+        The best controller word (the run's).
+    best : dict
+        Per controller word, ``{"params": {...}, "worst_iae": L, "iae": L}``.
+    seconds : float
+        Wall time of the sweep, s.
+    """
+
+    run_path: str
+    controller: str
+    best: dict
+    seconds: float
+
+
+def _toml(v) -> str:
+    from controller.sweep.spec import _toml_value
+
+    return _toml_value(v)
+
+
+def plant_model(model: FittedModel, fallback) -> FittedModel:
+    """``model`` if the simulated plant can run its kind, else ``fallback()`` (a PI fitted on the same rows)."""
+    from plant_sim.plant import PlantParams
+
+    try:
+        PlantParams(model=model)
+        return model
+    except InputError:
+        return fallback()
+
+
+def write_plant(out_dir: str, model_file: str, tau_s: float, delay_s: float, noise_lpm: float) -> str:
+    """``plant.toml``: the identified valve as a simulated plant; its path."""
+    path = os.path.join(out_dir, "plant.toml")
+    text = (
+        "# The identified valve as a simulated plant (valvectl identify): model, lag, delay, sensor noise.\n"
+        f"model = {_toml(model_file)}\n\n"
+        "[sensor]\n"
+        f"noise_lpm = {noise_lpm!r}   # measured on the steps (second differences)\n\n"
+        "[effects]\n"
+        f"valve_dynamics = {tau_s!r}   # s, from the steps\n"
+        f"transport_delay = {delay_s!r}   # s, from the steps (loop convention: one period less than command to reading)\n"
+    )
+    _write_atomic(path, text)
+    return path
+
+
+def _write_atomic(path: str, text: str) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def run_config(base, out_dir: str, tau_s: float, delay_s: float, noise_lpm: float):
+    """The input run configuration made this valve's: model, plant, ``[valve]``, no extra effects."""
+    from controller.config import RunConfig
+
+    s = copy.deepcopy(base.sections)
+    s[""].update(model="model.json", plant_config="plant.toml", plant="zenoh")
+    s["valve"].update(tau_s=float(tau_s), delay_s=float(delay_s))
+    s["kf"]["r_lpm"] = float(noise_lpm)  # the sensor noise measured on the steps
+    s["effects"] = {}  # the valve's lag and delay are in plant.toml now
+    s["zenoh"]["config"] = os.path.abspath(base.resolve(base["zenoh"]["config"]))
+    return RunConfig(os.path.join(out_dir, "run.toml"), os.path.abspath(out_dir), s)
+
+
+def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200) -> str:
+    """``sweep.toml`` of the short gain sweep on the identified plant, about ``candidates`` candidates."""
+    lines = [
+        "# The short gain sweep of valvectl identify, on the identified valve (plant.toml) and its drifts.",
+        'run = "run.toml"',
+        f"duration_s = {SWEEP_DURATION_S!r}",
+        f"seed = {seed}",
+        'objective = "worst_iae"',
+        "margins_top = 0",
+        "",
+        "[[variants]]",
+        "",
+        "[[variants]]              # slower valve",
+        f"valve_dynamics = {1.3 * tau_s!r}",
+        f"transport_delay = {1.3 * delay_s!r}",
+        "",
+        "[[variants]]              # faster valve",
+        f"valve_dynamics = {0.7 * tau_s!r}",
+        f"transport_delay = {0.7 * delay_s!r}",
+        "",
+        "[[variants]]              # supply 10 % low: every flow about 7 % lower than the model says",
+        "supply_bar = 2.7",
+    ]
+    for word, (n, ranges) in SWEEP_CANDIDATES.items():
+        lines += ["", "[[candidates]]", f'controller = "{word}"', f"sample = {max(4, round(n * candidates / 200))}"]
+        for k, (kind, (lo, hi)) in ((k, next(iter(v.items()))) for k, v in ranges.items()):
+            lines.append(f"{k} = {{{kind} = [{lo!r}, {hi!r}]}}")
+    return "\n".join(lines) + "\n"
+
+
+def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: float, delay_s: float, noise_lpm: float,
+         seed: int = 0, candidates: int = 200, workers: int | None = None) -> Tuning:
+    """Write model, plant, sweep and run files to ``out_dir``, run the sweep, write the tuned ``run.toml``."""
+    from controller.sweep import runner
+    from controller.sweep.spec import apply, load_sweep, write_run_config
+
+    save_model(model, os.path.join(out_dir, "model.json"))
+    plant_file = "model.json"
+    if plant is not model:
+        plant_file = "plant_model.json"
+        save_model(plant, os.path.join(out_dir, plant_file))
+    write_plant(out_dir, plant_file, tau_s, delay_s, noise_lpm)
+    run = run_config(base, out_dir, tau_s, delay_s, noise_lpm)
+    write_run_config(run, run.path)
+    sweep_path = os.path.join(out_dir, "sweep.toml")
+    _write_atomic(sweep_path, sweep_text(tau_s, delay_s, seed, candidates))
+    spec = load_sweep(sweep_path)
+    res = runner.run_sweep(spec, None, workers)
+    runner.write_csv(res, os.path.join(out_dir, "sweep.csv"))
+    obj = res.table[spec.objective]
+    words = res.table["controller"]
+    best, cfg = {}, run
+    for word in SWEEP_CANDIDATES:
+        idx = [i for i in range(len(words)) if words[i] == word and obj[i] == obj[i]]
+        if not idx:
+            continue
+        i = min(idx, key=lambda j: obj[j])
+        best[word] = runner.candidate_summary(res, i)
+        cfg = apply(cfg, word, spec.candidates.row(i))
+    if not best:
+        raise ValueError("the gain sweep gave no finite IAE for any candidate")
+    winner = min(best, key=lambda w: best[w][spec.objective])
+    cfg = dataclasses.replace(cfg, sections={**cfg.sections, "": {**cfg.sections[""], "controller": winner}})
+    cfg = apply(cfg, winner, {})
+    write_run_config(cfg, run.path)
+    return Tuning(run.path, winner, best, res.seconds)
