@@ -45,6 +45,7 @@ class KindResult:
     validation : Metrics
         On the step rows (L/min).
     invertible : bool
+        Whether the feedforward can invert it (:func:`feedforward_ready`).
     model : FittedModel
     """
 
@@ -77,13 +78,11 @@ class Estimate:
 
 
 def feedforward_ready(model: FittedModel) -> bool:
-    """Whether the loop's feedforward law (:mod:`controller.laws.feedforward`) can run this model."""
+    """Whether the loop's feedforward law (:mod:`controller.laws.feedforward`) can invert this model."""
     from controller.laws import feedforward as ffw
 
-    if model.inverse is None:
-        return False
     try:
-        ffw.inverse_bank(model), ffw.forward_bank(model)
+        ffw.bank(model)
     except (ValueError, AttributeError, TypeError):
         return False
     return True
@@ -135,8 +134,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
         pred = np.full(len(t_s), np.nan)
         pred[span] = predict_flow(model, duty_pct[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
         results[kind] = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
-                                   metrics(flow_lpm[val_mask], pred[val_mask]), model.inverse is not None, model)
-    invertible = [k for k, r in results.items() if feedforward_ready(r.model)]
+                                   metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model)
+    invertible = [k for k, r in results.items() if r.invertible]
     if not invertible:
         raise ValueError(f"the feedforward can run none of the kinds fitted ({', '.join(kinds)})")
     chosen = min(invertible, key=lambda k: results[k].validation.rmse)
