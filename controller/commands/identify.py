@@ -19,7 +19,9 @@ def add_arguments(p) -> None:
     p.add_argument("--connect", action="append", default=None, metavar="EP", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="valve time of the protocol, s (default [identify] duration_s)")
-    p.add_argument("--certs", default=None, metavar="DIR", help="TLS certificates of `valvectl certs DIR` (role controller)")
+    p.add_argument("--certs", default=None, metavar="DIR",
+                   help="TLS with mutual authentication and access control, as role controller "
+                        "(files of `valvectl certs DIR`)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
@@ -29,21 +31,6 @@ def _bar(total: float, desc: str, unit: str):
     # shown only when stderr is a terminal (disable=None)
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, disable=None, leave=False,
                 bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} {unit} [{elapsed}<{remaining}]")
-
-
-def _session_config(cfg, args):
-    """The Zenoh session for the commanding role, with TLS and access control when --certs is given."""
-    from models.recording import InputError
-
-    from controller.transport.zenoh import open_session
-
-    if args.certs is None:
-        return open_session(cfg, args.listen, args.connect, role="controller")
-    try:
-        from controller.transport import security
-    except ImportError:
-        raise InputError("--certs: TLS is not available in this build") from None
-    return security.open_secure_session(cfg, args.listen, args.connect, "controller", args.certs)
 
 
 def run(args) -> int:
@@ -59,6 +46,7 @@ def run(args) -> int:
     from controller.identify.report import summary_json
     from controller.identify.session import Safety, record_columns, run_session
     from controller.loop import RealClock, realtime
+    from controller.transport.zenoh import open_session
 
     cfg = load_run_config(args.config)
     idc, lim, lp = cfg["identify"], cfg["limits"], cfg["loop"]
@@ -76,7 +64,7 @@ def run(args) -> int:
     except OSError as exc:
         raise InputError(f"-o {out}: cannot create the folder ({exc.strerror})") from None
 
-    session = _session_config(cfg, args)
+    session = open_session(cfg, args.listen, args.connect, role="controller", certs=args.certs)
     link = Link(session, cfg["zenoh"]["id"], safety.stale_s)
     writer = None
     stopping: list[bool] = []
@@ -119,7 +107,8 @@ def run(args) -> int:
 
     c = res.columns
     try:
-        dyn = dynamics_from_steps(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase == "steps")
+        dyn = dynamics_from_steps(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase == "steps",
+                                  fresh=c["meas_age_ms"] == 0.0)
     except ValueError as exc:
         sys.stderr.write(f"valvectl identify: cannot read the lag and delay: {exc}\n")
         return 1
@@ -127,7 +116,7 @@ def run(args) -> int:
     dyn = dataclasses.replace(dyn, delay_s=max(dyn.delay_s - 1.0 / rate, 0.0))
     bar = _bar(len(KINDS), "fit", "kinds")
     est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct, dyn, rate,
-                   progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)))
+                   progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)), fresh=c["meas_age_ms"] == 0.0)
     bar.close()
     pi = est.results["pi"].model if "pi" in est.results else None
     plant = plant_model(est.model, lambda: pi)

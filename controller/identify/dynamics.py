@@ -158,22 +158,29 @@ def fit_step(t_s: np.ndarray, flow_lpm: np.ndarray, t0_s: float, noise_lpm: floa
     return StepFit(float(t0_s), math.nan, math.nan, y0f, dyf, tau, d, float(se[2]), float(se[3]), math.sqrt(s2))
 
 
-def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, rows: np.ndarray) -> Dynamics:
+def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, rows: np.ndarray,
+                        fresh: np.ndarray | None = None) -> Dynamics:
     """Lag and delay from every readable step among ``rows`` (a boolean mask of the step-test rows).
+
+    ``fresh`` (a boolean mask) marks the rows whose flow was received in that row's step; the
+    others repeat an older reading (a loop over a network sees no new one in some periods) and
+    are left out of the noise estimate and the fits. All rows are fresh when not given.
 
     Raises
     ------
     ValueError
         When no step could be read.
     """
-    noise = noise_std(flow_lpm[rows])
+    fresh = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
+    noise = noise_std(flow_lpm[rows & fresh])
     idx = np.flatnonzero(rows)
     starts = [int(k) for k in step_rows(duty_pct) if rows[k] and k > idx[0]]
     fits = []
     for j, k in enumerate(starts):
         end = starts[j + 1] if j + 1 < len(starts) else int(idx[-1]) + 1
         a = max(k - max(3, (end - k) // 20), 0)
-        f = fit_step(t_s[a:end], flow_lpm[a:end], float(t_s[k]), noise)
+        use = a + np.flatnonzero(fresh[a:end])
+        f = fit_step(t_s[use], flow_lpm[use], float(t_s[k]), noise)
         if f is not None:
             fits.append(StepFit(f.t0_s, float(duty_pct[k - 1]), float(duty_pct[k]), *(getattr(f, n) for n in (
                 "y0_lpm", "dy_lpm", "tau_s", "delay_s", "tau_se_s", "delay_se_s", "rmse_lpm"))))

@@ -102,7 +102,7 @@ def predict_flow(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, tau_s
 
 def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase: np.ndarray, lo_pct: float,
              dyn: Dynamics, rate_hz: float, kinds: Sequence[str] = KINDS,
-             progress: Callable[[str], None] | None = None) -> Estimate:
+             progress: Callable[[str], None] | None = None, fresh: np.ndarray | None = None) -> Estimate:
     """Fit ``kinds`` on the sweep and reversals, validate on the steps, choose the feedforward's kind.
 
     Parameters
@@ -116,6 +116,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
         than the command-to-measurement delay).
     rate_hz : float
         The recording's step rate, Hz.
+    fresh : ndarray of bool, optional
+        Rows whose flow was received in that step (the fit reads the flow ahead from them only).
     """
     fit_mask = np.isin(phase, FIT_PHASES)
     sweep_rows = np.flatnonzero(phase == "sweep")
@@ -124,7 +126,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
     val_mask = phase == VALIDATION_PHASE
     fit_idx = np.flatnonzero(fit_mask)
     lag_s = dyn.tau_s + dyn.delay_s + 1.0 / rate_hz
-    ahead = np.interp(t_s[fit_idx] + lag_s, t_s, flow_lpm)
+    f = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
+    ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
     span = slice(first, int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s))
     results = {}
     for kind in kinds:

@@ -72,7 +72,8 @@ class SessionResult:
     Attributes
     ----------
     columns : dict of ndarray
-        ``t_s, duty_pct, flow_lpm`` and the auxiliary measurements recorded.
+        ``t_s, duty_pct, flow_lpm``, the auxiliary measurements recorded and ``meas_age_ms``
+        (0 on the rows whose flow was received in that step).
     phase : ndarray of str
         Protocol phase per row (``safe`` for the row that stopped it).
     aborted : bool
@@ -131,7 +132,7 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
     aux = tuple(a for a in AUX_COLUMNS if a in aux)
     accept = in_range(*safety.sensor_range_lpm)
     cap = int(program.p.duration_s * rate_hz) + 16
-    cols = {c: np.empty(cap) for c in BASE_COLUMNS + aux}
+    cols = {c: np.empty(cap) for c in BASE_COLUMNS + aux + ("meas_age_ms",)}
     phases: list[str] = []
     aux_now = {a: math.nan for a in aux}
     if aux:
@@ -184,9 +185,10 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
         cols["t_s"][steps], cols["duty_pct"][steps], cols["flow_lpm"][steps] = t, duty, flow
         for a in aux:
             cols[a][steps] = aux_now[a]
+        age_ms = cols["meas_age_ms"][steps] = dog.age(t) * 1e3
         phases.append(phase)
         if writer is not None:
-            writer.write((t, duty, flow, *(aux_now[a] for a in aux), phase, dog.age(t) * 1e3))
+            writer.write((t, duty, flow, *(aux_now[a] for a in aux), phase, age_ms))
         steps += 1
         if progress is not None and steps % every == 0:
             progress(program.fraction, phase)

@@ -105,7 +105,7 @@ def run_config(base, out_dir: str, tau_s: float, delay_s: float, noise_lpm: floa
     s = copy.deepcopy(base.sections)
     s[""].update(model="model.json", plant_config="plant.toml", plant="zenoh")
     s["valve"].update(tau_s=float(tau_s), delay_s=float(delay_s))
-    s["kf"]["r_lpm"] = float(noise_lpm)  # the sensor noise measured on the steps
+    s["kf"]["r_lpm"] = max(float(noise_lpm), 0.01)  # the sensor noise measured on the steps (a quantum at least)
     s["effects"] = {}  # the valve's lag and delay are in plant.toml now
     s["zenoh"]["config"] = os.path.abspath(base.resolve(base["zenoh"]["config"]))
     return RunConfig(os.path.join(out_dir, "run.toml"), os.path.abspath(out_dir), s)
