@@ -115,7 +115,8 @@ def run(args) -> int:
     # the loop's convention ([valve] delay_s, plant transport_delay): one period less than command to reading
     dyn = dataclasses.replace(dyn, delay_s=max(dyn.delay_s - 1.0 / rate, 0.0))
     bar = _bar(len(KINDS), "fit", "kinds")
-    est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct, dyn, rate,
+    est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct,
+                   res.working_range.hi_pct, dyn, rate,
                    progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)), fresh=c["meas_age_ms"] == 0.0)
     bar.close()
     pi = est.results["pi"].model if "pi" in est.results else None

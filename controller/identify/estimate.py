@@ -4,12 +4,18 @@ The hysteresis models are static (rate independent) and the valve puts its
 lag and delay behind them, so:
 
 - each kind is fitted (:func:`models.fitting.fit_model`, the paper's
-  preprocessing) on the sweep and reversal rows, from the sweep's first row in
-  the working range, against the flow read ``tau + delay`` later (a
-  first-order lag of a slow input is that input delayed by ``tau``);
-- it is validated on the step rows, never fitted, through the lag and delay
-  the steps gave (:mod:`models.diagnose.effects`), driven from the first
-  fitted row so its memory is the valve's;
+  preprocessing) on the rows of the range ramp, the sweep and the reversals
+  against the flow read ``tau + delay`` later (a first-order lag of a slow
+  input is that input delayed by ``tau``). The fit starts at the first row,
+  where the valve was at rest at the lowest duty, as every model's memory
+  starts (at rest at its first input): started anywhere later, a model would
+  begin with a memory the valve does not have. Each kind is fitted twice, on
+  the duty as commanded (the models see the dead zone and the full-open
+  end, and the memory left by them) and on the duty held to the working
+  range (the models spend their resolution where the valve moves); the one
+  that validates better is kept;
+- each is validated on the step rows, never fitted, through the lag and delay
+  the steps gave (:mod:`models.diagnose.effects`), driven from the first row;
 - the feedforward is the invertible kind with the least validation RMSE among
   those the feedforward law can run (:func:`feedforward_ready`).
 """
@@ -27,7 +33,7 @@ from models.model import FittedModel
 
 from .dynamics import Dynamics
 
-FIT_PHASES = ("sweep", "reversals")
+FIT_PHASES = ("range", "sweep", "reversals")
 VALIDATION_PHASE = "steps"
 
 
@@ -47,6 +53,8 @@ class KindResult:
     invertible : bool
         Whether the feedforward can invert it (:func:`feedforward_ready`).
     model : FittedModel
+    duty_range : str
+        ``commanded`` or ``working``: the input the kept fit saw.
     """
 
     kind: str
@@ -55,6 +63,7 @@ class KindResult:
     validation: Metrics
     invertible: bool
     model: FittedModel = field(repr=False)
+    duty_range: str = "commanded"
 
 
 @dataclass(frozen=True)
@@ -63,7 +72,6 @@ class Estimate:
 
     results: dict
     chosen: str
-    first_row: int
     fit_rows: np.ndarray
     validation_rows: np.ndarray
 
@@ -73,7 +81,7 @@ class Estimate:
 
     def to_json(self) -> dict:
         return {k: {"mae": r.in_sample.mae, "rmse": r.in_sample.rmse, "r": r.in_sample.r, "fit_s": r.fit_s,
-                    "validation": r.validation.to_dict(), "invertible": r.invertible}
+                    "validation": r.validation.to_dict(), "invertible": r.invertible, "duty_range": r.duty_range}
                 for k, r in self.results.items()}
 
 
@@ -101,7 +109,7 @@ def predict_flow(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, tau_s
 
 
 def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase: np.ndarray, lo_pct: float,
-             dyn: Dynamics, rate_hz: float, kinds: Sequence[str] = KINDS,
+             hi_pct: float, dyn: Dynamics, rate_hz: float, kinds: Sequence[str] = KINDS,
              progress: Callable[[str], None] | None = None, fresh: np.ndarray | None = None) -> Estimate:
     """Fit ``kinds`` on the sweep and reversals, validate on the steps, choose the feedforward's kind.
 
@@ -109,8 +117,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
     ----------
     t_s, duty_pct, flow_lpm, phase : ndarray
         The identification recording and each row's protocol phase.
-    lo_pct : float
-        Cracking duty of the working range: fitting starts where the sweep reaches it.
+    lo_pct, hi_pct : float
+        The working range (cracking and full-open duty), for the second fit of each kind.
     dyn : Dynamics
         Lag and delay from the steps (``delay_s`` in the loop's convention: one period less
         than the command-to-measurement delay).
@@ -120,39 +128,40 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
         Rows whose flow was received in that step (the fit reads the flow ahead from them only).
     """
     fit_mask = np.isin(phase, FIT_PHASES)
-    sweep_rows = np.flatnonzero(phase == "sweep")
-    first = int(sweep_rows[np.argmax(duty_pct[sweep_rows] >= lo_pct)])
-    fit_mask[:first] = False
     val_mask = phase == VALIDATION_PHASE
     fit_idx = np.flatnonzero(fit_mask)
     lag_s = dyn.tau_s + dyn.delay_s + 1.0 / rate_hz
     f = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
     ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
-    span = slice(first, int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s))
+    span = slice(0, int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s))
+    inputs = {"commanded": duty_pct, "working": np.clip(duty_pct, lo_pct, hi_pct)}
     results = {}
     for kind in kinds:
         if progress:
             progress(kind)
-        model = fit_model(kind, t_s[fit_idx], duty_pct[fit_idx], ahead, source="identification")
-        pred = np.full(len(t_s), np.nan)
-        pred[span] = predict_flow(model, duty_pct[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
-        results[kind] = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
-                                   metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model)
+        for name, x in inputs.items():
+            model = fit_model(kind, t_s[fit_idx], x[fit_idx], ahead, source="identification")
+            pred = np.full(len(t_s), np.nan)
+            pred[span] = predict_flow(model, x[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+            r = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
+                           metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model, name)
+            if kind not in results or r.validation.rmse < results[kind].validation.rmse:
+                results[kind] = r
     invertible = [k for k, r in results.items() if r.invertible]
     if not invertible:
         raise ValueError(f"the feedforward can run none of the kinds fitted ({', '.join(kinds)})")
     chosen = min(invertible, key=lambda k: results[k].validation.rmse)
-    return Estimate(results, chosen, first, fit_idx, np.flatnonzero(val_mask))
+    return Estimate(results, chosen, fit_idx, np.flatnonzero(val_mask))
 
 
 def table(est: Estimate) -> str:
     """Table 1 as Markdown: in-sample and validation figures per kind, the chosen one marked."""
-    lines = ["| model | MAE | RMSE | r | validation MAE | validation RMSE | validation r | fit s | invertible |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | :---: |"]
+    lines = ["| model | duty seen | MAE | RMSE | r | validation MAE | validation RMSE | validation r | fit s | invertible |",
+             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | :---: |"]
     for k, r in est.results.items():
         m, v = r.in_sample, r.validation
         name = f"**{k}** (feedforward)" if k == est.chosen else k
-        lines.append(f"| {name} | {m.mae:.2f} | {m.rmse:.2f} | {m.r:.4f} | {v.mae:.2f} | {v.rmse:.2f} | {v.r:.4f} "
+        lines.append(f"| {name} | {r.duty_range} | {m.mae:.2f} | {m.rmse:.2f} | {m.r:.4f} | {v.mae:.2f} | {v.rmse:.2f} | {v.r:.4f} "
                      f"| {r.fit_s:.1f} | {'yes' if r.invertible else 'no'} |")
     return "\n".join(lines)
 
@@ -165,9 +174,8 @@ def loops_plot(est: Estimate, duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_h
         fig, ax = plt.subplots(figsize=(7, 5))
     else:
         fig = ax.figure
-    span = slice(est.first_row, len(duty_pct))
-    pred = predict_flow(est.model, duty_pct[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
-    idx = est.fit_rows - est.first_row
+    pred = predict_flow(est.model, duty_pct, rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+    idx = est.fit_rows
     step = max(1, len(idx) // 20000)
     ax.plot(duty_pct[est.fit_rows][::step], flow_lpm[est.fit_rows][::step], ".", ms=1, color="tab:orange",
             alpha=0.4, label="measured")
@@ -175,7 +183,7 @@ def loops_plot(est: Estimate, duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_h
             label=f"{est.chosen} (fitted)")
     ax.set_xlabel("duty cycle (%)")
     ax.set_ylabel("flow (L/min)")
-    ax.set_title("major and minor loops: sweep and reversals")
+    ax.set_title("major and minor loops: range ramp, sweep and reversals")
     ax.legend(loc="upper left", markerscale=6)
     fig.tight_layout()
     return fig

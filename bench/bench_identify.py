@@ -1,0 +1,169 @@
+"""valvectl identify against valve-node twins: model, lag and delay, and the run configuration it writes.
+
+For each twin (``config/valves/NAME``, here with a 15 ms lag, a 10 ms delay
+and its 0.5 L/min sensor noise) and each protocol duration:
+
+1. ``valvectl valve-node`` serves the twin; ``valvectl identify --duration S``
+   characterizes it over Zenoh (loopback, free ports);
+2. the identified model, behind its lag and delay, predicts the twin's
+   noise-free flow on a held-out protocol (random holds and sines over the
+   working range, never seen by the identification): RMSE;
+3. the lag and delay against the twin's;
+4. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
+   steady MAE and IAE of the run's controller, and of ``pid`` (the sweep's
+   best PID, same run configuration) as the baseline measured in the same run.
+
+Prints one table. Usage::
+
+    python bench/bench_identify.py [--twin pvp bench] [--duration 600 300 120] [--out DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from controller.config import load_run_config  # noqa: E402
+from controller.identify.estimate import predict_flow  # noqa: E402
+from controller.sweep.spec import write_run_config  # noqa: E402
+from models.model import load_model  # noqa: E402
+from plant_sim import protocols  # noqa: E402
+from plant_sim.plant import Plant, load_plant  # noqa: E402
+from tests.zenoh_helpers import free_port  # noqa: E402
+
+TAU_S, DELAY_S = 0.015, 0.010
+RUN_S = 20.0
+
+
+def twin_config(name: str, folder: str) -> str:
+    """The twin's run.toml with the lag and delay of the check, no real-time priority, in ``folder``."""
+    base = load_run_config(os.path.join(ROOT, "config", "valves", name, "run.toml"))
+    s = copy.deepcopy(base.sections)
+    s["effects"] = {"valve_dynamics": TAU_S, "transport_delay": DELAY_S}
+    s["loop"]["rt_priority"] = 0
+    # a shared 2-core machine stalls processes for a few hundred ms, and a node may take long to start
+    s["identify"].update(stale_ms=1000.0, wait_s=120.0)
+    path = os.path.join(folder, f"twin_{name}.toml")
+    write_run_config(dataclasses.replace(base, sections=s), path)
+    return path
+
+
+def valvectl(*args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "controller.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def node(cfg: str, ep: str, json_path: str) -> subprocess.Popen:
+    return valvectl("valve-node", "--config", cfg, "--listen", ep, "--connect", "tcp/127.0.0.1:1", "--json", json_path)
+
+
+def stop(p: subprocess.Popen):
+    if p.poll() is None:
+        p.send_signal(signal.SIGTERM)
+    return p.communicate(timeout=120)
+
+
+def held_out_rmse(cfg_path: str, out: str) -> float:
+    """RMSE (L/min) of the identified model behind its lag and delay against the twin's noise-free flow."""
+    cfg = load_run_config(cfg_path)
+    plant_params = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
+    summ = json.load(open(os.path.join(out, "identify.json")))
+    lo, hi = summ["working_range"]["lo_pct"], summ["working_range"]["hi_pct"]
+    rate = 1000.0
+    duty = np.concatenate([protocols.random_holds(rate, 60.0, seed=7, lo_pct=lo, hi_pct=hi, hold_s=(0.3, 3.0)),
+                           protocols.sines(rate, 60.0, center_pct=(lo + hi) / 2, amplitude_pct=(hi - lo) / 2,
+                                           periods_s=(20.0, 5.0, 1.0))])
+    true = Plant(plant_params, rate, seed=0).simulate(duty)["true_flow_lpm"]
+    model = load_model(os.path.join(out, "model.json"))
+    # the plant's row k is its answer to the duty of row k, read one period later by a loop
+    pred = predict_flow(model, duty, rate, summ["tau_s"], summ["delay_s"] + 1.0 / rate)
+    e = pred[1:] - true[:-1]
+    return float(np.sqrt(np.mean(e * e)))
+
+
+def closed_loop(cfg: str, run_toml: str, out: str, word: str | None) -> dict:
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    n = node(cfg, ep, os.path.join(out, f"n_run_{word or 'default'}.json"))
+    s_json = os.path.join(out, f"run_{word or 'default'}.json")
+    args = ["run", "--plant", "zenoh", "--config", run_toml, "--listen", ep, "--duration", str(RUN_S), "--json", s_json]
+    if word:
+        args += ["--controller", word]
+    try:
+        r = valvectl(*args)
+        so, se = r.communicate(timeout=600)
+    finally:
+        stop(n)
+    if r.returncode != 0:
+        raise RuntimeError(f"run {word}: {se.strip()[-400:]}")
+    return json.load(open(s_json))
+
+
+def one(name: str, duration: float, root: str) -> dict:
+    folder = os.path.join(root, name, f"{int(duration)}s")
+    os.makedirs(folder, exist_ok=True)
+    cfg = twin_config(name, folder)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    n = node(cfg, ep, os.path.join(folder, "n_identify.json"))
+    out = os.path.join(folder, "id")
+    t0 = time.perf_counter()
+    try:
+        p = valvectl("identify", "--config", cfg, "--connect", ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
+                     "--duration", str(duration), "-o", out)
+        so, se = p.communicate(timeout=duration + 1800)
+    finally:
+        stop(n)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"identify {name} {duration}: {se.strip()[-400:]}")
+    summ = json.load(open(os.path.join(out, "identify.json")))
+    nj = json.load(open(os.path.join(folder, "n_identify.json")))
+    row = {"twin": name, "duration_s": summ["duration_s"], "wall_s": wall, "model": summ["model"],
+           "tau_ms": summ["tau_s"] * 1e3, "delay_ms": summ["delay_s"] * 1e3,
+           "tau_err": summ["tau_s"] / TAU_S - 1, "delay_err": summ["delay_s"] / DELAY_S - 1,
+           "val_rmse": summ["validation"]["rmse"], "held_out_rmse": held_out_rmse(cfg, out),
+           "round_trip_p50_us": nj["round_trip_us"]["p50"], "controller": summ["controller"]}
+    run_toml = os.path.join(out, "run.toml")
+    best = closed_loop(cfg, run_toml, folder, None)
+    pid = closed_loop(cfg, run_toml, folder, "pid")
+    row.update(steady_mae=best["tracking"]["steady_mae_lpm"], iae=best["tracking"]["iae"],
+               iae_pid=pid["tracking"]["iae"], steady_mae_pid=pid["tracking"]["steady_mae_lpm"],
+               faults=[f["kind"] for f in best["faults"]], overruns=best["overruns"])
+    row["iae_ratio"] = row["iae"] / row["iae_pid"]
+    with open(os.path.join(folder, "bench.json"), "w") as fh:
+        json.dump(row, fh, indent=1)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--twin", nargs="+", default=["pvp", "bench"])
+    ap.add_argument("--duration", nargs="+", type=float, default=[600.0])
+    ap.add_argument("--out", default="/tmp/bench_identify")
+    a = ap.parse_args()
+    rows = []
+    for name in a.twin:
+        for d in a.duration:
+            r = one(name, d, a.out)
+            rows.append(r)
+            print(json.dumps(r), flush=True)
+    print(f"\n{'twin':<6}{'dur s':>7}{'model':>9}{'tau ms':>8}{'err':>7}{'delay ms':>9}{'err':>7}{'held-out':>9}"
+          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}")
+    for r in rows:
+        print(f"{r['twin']:<6}{r['duration_s']:7.0f}{r['model']:>9}{r['tau_ms']:8.2f}{r['tau_err']:7.1%}"
+              f"{r['delay_ms']:9.2f}{r['delay_err']:7.1%}{r['held_out_rmse']:9.2f}{r['controller']:>8}"
+              f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}")
+
+
+if __name__ == "__main__":
+    main()
