@@ -6,14 +6,13 @@ lag and delay behind them, so:
 - each kind is fitted (:func:`models.fitting.fit_model`, the paper's
   preprocessing) on the rows of the range ramp, the sweep and the reversals
   against the flow read ``tau + delay`` later (a first-order lag of a slow
-  input is that input delayed by ``tau``). The fit starts at the first row,
-  where the valve was at rest at the lowest duty, as every model's memory
-  starts (at rest at its first input): started anywhere later, a model would
-  begin with a memory the valve does not have. Each kind is fitted twice, on
-  the duty as commanded (the models see the dead zone and the full-open
-  end, and the memory left by them) and on the duty held to the working
-  range (the models spend their resolution where the valve moves); the one
-  that validates better is kept;
+  input is that input delayed by ``tau``), twice: from the first row on the
+  duty as commanded (the valve was at rest at the lowest duty, as every
+  model's memory starts; the models see the dead zone and the full-open end
+  and the memory they leave), and from the sweep's entry into the working
+  range on the duty held to that range (memory wiped below it; the models
+  spend their resolution where the valve moves). The fit that validates
+  better is kept;
 - each is validated on the step rows, never fitted, through the lag and delay
   the steps gave (:mod:`models.diagnose.effects`), driven from the first row;
 - the feedforward is the invertible kind with the least validation RMSE among
@@ -54,7 +53,10 @@ class KindResult:
         Whether the feedforward can invert it (:func:`feedforward_ready`).
     model : FittedModel
     duty_range : str
-        ``commanded`` or ``working``: the input the kept fit saw.
+        ``commanded`` (from the first row) or ``working`` (held to the working range, from the
+        sweep's entry into it): the input the kept fit saw.
+    fit_rows : ndarray of int
+        The rows it was fitted on.
     """
 
     kind: str
@@ -64,6 +66,7 @@ class KindResult:
     invertible: bool
     model: FittedModel = field(repr=False)
     duty_range: str = "commanded"
+    fit_rows: np.ndarray = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -72,7 +75,6 @@ class Estimate:
 
     results: dict
     chosen: str
-    fit_rows: np.ndarray
     validation_rows: np.ndarray
 
     @property
@@ -127,31 +129,37 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
     fresh : ndarray of bool, optional
         Rows whose flow was received in that step (the fit reads the flow ahead from them only).
     """
-    fit_mask = np.isin(phase, FIT_PHASES)
     val_mask = phase == VALIDATION_PHASE
-    fit_idx = np.flatnonzero(fit_mask)
     lag_s = dyn.tau_s + dyn.delay_s + 1.0 / rate_hz
     f = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
-    ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
-    span = slice(0, int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s))
-    inputs = {"commanded": duty_pct, "working": np.clip(duty_pct, lo_pct, hi_pct)}
+    end = int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s)
+    sweep_rows = np.flatnonzero(phase == "sweep")
+    entry = int(sweep_rows[np.argmax(duty_pct[sweep_rows] >= lo_pct)])  # the sweep enters the working range
+    # (name, duty the model sees, first row): from the valve at rest on the duty as commanded, or from
+    # the sweep's entry into the working range (memory wiped below it) on the duty held to that range
+    inputs = (("commanded", duty_pct, 0), ("working", np.clip(duty_pct, lo_pct, hi_pct), entry))
     results = {}
     for kind in kinds:
         if progress:
             progress(kind)
-        for name, x in inputs.items():
+        for name, x, first in inputs:
+            fit_mask = np.isin(phase, FIT_PHASES)
+            fit_mask[:first] = False
+            fit_idx = np.flatnonzero(fit_mask)
+            ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
             model = fit_model(kind, t_s[fit_idx], x[fit_idx], ahead, source="identification")
             pred = np.full(len(t_s), np.nan)
-            pred[span] = predict_flow(model, x[span], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+            pred[first:end] = predict_flow(model, x[first:end], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
             r = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
-                           metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model, name)
+                           metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model, name,
+                           fit_idx)
             if kind not in results or r.validation.rmse < results[kind].validation.rmse:
                 results[kind] = r
     invertible = [k for k, r in results.items() if r.invertible]
     if not invertible:
         raise ValueError(f"the feedforward can run none of the kinds fitted ({', '.join(kinds)})")
     chosen = min(invertible, key=lambda k: results[k].validation.rmse)
-    return Estimate(results, chosen, fit_idx, np.flatnonzero(val_mask))
+    return Estimate(results, chosen, np.flatnonzero(val_mask))
 
 
 def table(est: Estimate) -> str:
@@ -174,13 +182,11 @@ def loops_plot(est: Estimate, duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_h
         fig, ax = plt.subplots(figsize=(7, 5))
     else:
         fig = ax.figure
-    pred = predict_flow(est.model, duty_pct, rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
-    idx = est.fit_rows
+    idx = est.results[est.chosen].fit_rows
+    pred = predict_flow(est.model, duty_pct[idx[0]:], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)[idx - idx[0]]
     step = max(1, len(idx) // 20000)
-    ax.plot(duty_pct[est.fit_rows][::step], flow_lpm[est.fit_rows][::step], ".", ms=1, color="tab:orange",
-            alpha=0.4, label="measured")
-    ax.plot(duty_pct[est.fit_rows][::step], pred[idx][::step], color="tab:blue", lw=0.6,
-            label=f"{est.chosen} (fitted)")
+    ax.plot(duty_pct[idx][::step], flow_lpm[idx][::step], ".", ms=1, color="tab:orange", alpha=0.4, label="measured")
+    ax.plot(duty_pct[idx][::step], pred[::step], color="tab:blue", lw=0.6, label=f"{est.chosen} (fitted)")
     ax.set_xlabel("duty cycle (%)")
     ax.set_ylabel("flow (L/min)")
     ax.set_title("major and minor loops: range ramp, sweep and reversals")
