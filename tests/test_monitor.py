@@ -8,6 +8,7 @@ import select
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -181,3 +182,31 @@ def test_an_in_process_run_with_listen_publishes_its_status(tmp_path):
             got.append(parse_status(x.payload.to_bytes()).value)
     assert got and {"state", "controller", "ref_lpm", "flow_lpm", "duty_pct", "alarms", "faults"} <= set(got[-1])
     assert any("supply_low" in g["alarms"] for g in got)
+
+
+def test_the_controller_reads_the_supply_the_valve_publishes():
+    """meas/supply (bar gauge, as valve-node publishes it) reaches the loop's supply_low alarm; nonsense is dropped."""
+    from controller.transport.zenoh import ZenohTransport
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("listen/endpoints", json.dumps([ep]))
+    with zenoh.open(c) as ctrl_session, client_session(ep) as valve:
+        zt = ZenohTransport(ctrl_session)
+        try:
+            assert zt.supply_bar() is None  # nothing published yet: no supply_low either way
+            pub = valve.declare_publisher("vent/valve/insp/meas/supply")
+
+            def published(v, seq):
+                pub.put(json.dumps({"t": 0.0, "seq": seq, "value": v}))
+                return zt.supply_bar() == v
+
+            wait_for(lambda: published(1.5, 1), "the supply reading")
+            for seq, bad in enumerate((1e9, -50.0, "low"), start=2):  # implausible: the last good one holds
+                pub.put(json.dumps({"t": 0.0, "seq": seq, "value": bad}))
+            time.sleep(0.3)
+            assert zt.supply_bar() == 1.5
+        finally:
+            zt.close()

@@ -35,6 +35,11 @@ DRAIN_BUDGET_S = 150e-6
 AUX_KEYS = {"supply_bar": "meas/supply", "coil_temp_c": "meas/coil_temp"}
 
 
+def _plausible_supply(bar: float) -> bool:
+    """A supply reading a valve could report, bar gauge (anything else is dropped unseen)."""
+    return -1.0 <= bar <= 100.0
+
+
 def session_config(cfg, listen: list[str] | None, connect: list[str] | None, role: str,
                    certs: str | None = None) -> zenoh.Config:
     """Zenoh configuration for ``role`` (``controller``, ``valve``, ``stack`` or ``monitor``).
@@ -196,6 +201,8 @@ class ZenohTransport:
         self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s))
         self.ref_in = Inbox(session, f"{k}/ref/flow")
         self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word)
+        self.supply_in = Inbox(session, f"{k}/{AUX_KEYS['supply_bar']}")
+        self._supply_bar: float | None = None
         rt = {"priority": zenoh.Priority.REAL_TIME, "express": True, "congestion_control": zenoh.CongestionControl.DROP}
         self.cmd = _Publisher(session, f"{k}/cmd/duty", **rt)
         self.err = _Publisher(session, f"{k}/ctrl/error", express=True, congestion_control=zenoh.CongestionControl.DROP)
@@ -220,6 +227,13 @@ class ZenohTransport:
         m, bad, _ = self.mode_in.poll()
         return (None if m is None else m.value), bad
 
+    def supply_bar(self) -> float | None:
+        """The newest supply pressure the valve published (``meas/supply``, bar gauge), held; None before any."""
+        m, _, _ = self.supply_in.poll(_plausible_supply)
+        if m is not None:
+            self._supply_bar = m.value
+        return self._supply_bar
+
     def command(self, duty_pct: float, t_s: float) -> None:
         # meas_seq: the newest measurement this command was computed from (round-trip timing).
         self.cmd.put(t_s, duty_pct, meas_seq=self.meas_seq)
@@ -234,7 +248,7 @@ class ZenohTransport:
         self.token.undeclare()
         for p in (self.cmd, self.err, self.status):
             p.undeclare()
-        for i in (self.meas_in, self.ref_in, self.mode_in):
+        for i in (self.meas_in, self.ref_in, self.mode_in, self.supply_in):
             i.undeclare()
 
 
