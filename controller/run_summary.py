@@ -24,6 +24,8 @@ from .loop import LoopResult
 from .watchdog import RUNNING
 
 STEADY_AFTER_S = 0.100
+#: Window of the run plot's running mean of the error, s.
+ERROR_MEAN_S = 0.050
 
 
 def _pct_us(x: np.ndarray) -> dict:
@@ -139,7 +141,12 @@ def run_plot(columns: dict, ax=None, title: str = ""):
     ax[1].set_ylabel("duty (%)")
     ax[1].legend(loc="upper right", fontsize=8, ncol=2)
     err = np.where(run, np.asarray(columns["ref_lpm"]) - np.asarray(columns["flow_lpm"]), np.nan)
-    ax[2].plot(t, err, lw=0.5, color="C3")
+    ax[2].plot(t, err, lw=0.4, color="C3", alpha=0.6, label="per step")
+    if len(t) > 1:  # the sensor noise averaged out: the steady error reads through it
+        n = max(1, int(round(ERROR_MEAN_S / float(np.median(np.diff(t))))))
+        mean = np.convolve(np.nan_to_num(err), np.ones(n) / n, mode="same")
+        ax[2].plot(t, np.where(run, mean, np.nan), lw=1.0, color="k", label=f"{ERROR_MEAN_S * 1e3:.0f} ms mean")
+        ax[2].legend(loc="upper right", fontsize=8)
     ax[2].axhline(0, color="k", lw=0.5)
     ax[2].set_yscale("symlog", linthresh=1.0)
     steady = run & steady_mask(t, np.asarray(columns["ref_lpm"], dtype=float))

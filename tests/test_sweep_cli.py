@@ -67,7 +67,7 @@ def read_csv(path):
 def test_sweep_writes_table_summary_plot_and_best_config(small, tmp_path, capsys):
     out, js, png, best = (tmp_path / n for n in ("s.csv", "s.json", "p.png", "best.toml"))
     assert main(["sweep", "--config", str(small), "-o", str(out), "--json", str(js), "--plot", str(png),
-                 "--best-config", str(best), "--workers", "1"]) == 0
+                 "--best-config", str(best), "--workers", "1", "--report", str(tmp_path / "rep")]) == 0
     rows = read_csv(out)
     assert len(rows) == 1 + 6 + 4 + 2  # the default first, then the file's candidates
     header = list(rows[0])
@@ -91,6 +91,8 @@ def test_sweep_writes_table_summary_plot_and_best_config(small, tmp_path, capsys
     assert s["best"]["iae"] <= s["default"]["iae"]
     assert png.read_bytes()[:4] == b"\x89PNG"
     assert "[pid]" in best.read_text()
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "![sweep](sweep.png)" in md and f"## best: {s['best']['params']['controller']}" in md
 
 
 def test_dask_cluster_gives_the_local_pools_table(small):
