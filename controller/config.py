@@ -92,6 +92,8 @@ class Zenoh(_Section):
     listen: list[NonEmpty] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     connect: list[NonEmpty] = msgspec.field(default_factory=list)
     config: str = "zenoh.json5"
+    io_priority: Annotated[int, msgspec.Meta(ge=0, le=99)] = 0  # SCHED_FIFO of Zenoh's threads (0: normal)
+    io_nice: Annotated[int, msgspec.Meta(ge=-20, le=19)] = 0    # their nice value under the normal scheduler
 
 
 class ValveNode(_Section):

@@ -287,7 +287,8 @@ class Loop:
         safe = cfg.safe_duty_pct
         preview = getattr(reference, "preview_s", 0.0) > 0
 
-        meas_dog = Watchdog(cfg.stale_ms * 1e-3, 0.0)
+        stale_s = cfg.stale_ms * 1e-3
+        meas_dog = Watchdog(stale_s, 0.0)
         ref_dog = Watchdog(cfg.ref_stale_ms * 1e-3, 0.0)
         state, stale, ref_stale = SAFE, False, False
         ctrl = None
@@ -296,6 +297,13 @@ class Loop:
         duty = safe
         ff = fb = 0.0
         steps = overruns = 0
+
+        # Warm-up: each law computes one throw-away step before the first deadline, so loading its
+        # compiled kernels (numba's cache: tens to hundreds of ms on a busy host) never stalls a live
+        # step, nor the valve, whose own command timeout would close it meanwhile.
+        zero = np.zeros(1)
+        for p in sup.laws.values():
+            control.step(p, control.init(p, 0.0, safe), zero, zero, period, zero)
 
         gc.collect()
         gc.freeze()
@@ -406,7 +414,9 @@ class Loop:
                 if writer is not None:
                     writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word,
                                   limit, age_ms))
-                a["compute_s"][i] = pc() - c0
+                a["compute_s"][i] = end = pc() - c0
+                if end + (now - deadline) > stale_s:  # the loop itself stood still longer than its watchdog allows
+                    faults.add("stalled", t)
                 steps += 1
 
                 if (n_steps is not None and steps >= n_steps) or (stop is not None and stop()):

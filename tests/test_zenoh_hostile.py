@@ -184,3 +184,37 @@ def test_a_third_publisher_neither_steers_nor_hides_a_dead_valve(tmp_path):
     assert len(table) - last_run > 500
     faults = {f["kind"]: f["count"] for f in json.loads(summ.read_text())["faults"]}
     assert faults["spoofed_measurement"] > 0 and faults["stale"] >= 1
+
+
+def test_a_stalled_step_shows_in_the_summary():
+    """A step held up by its inputs (as a drain without a budget was by a 1 MB flood) is reported truthfully:
+    as the longest step, its missed deadlines as overruns, and a `stalled` fault (the loop stood still
+    longer than its own watchdog allows a measurement to)."""
+    from controller.config import controller_params, load_run_config
+    from controller.loop import Loop, LoopSettings, ProfileReference, RealClock
+    from controller.run_summary import summary
+    from controller.transport.sim import SimTransport
+    from models.model import load_model
+    from plant_sim.plant import Plant, load_plant
+
+    stall_s, rate = 0.3, 1000.0
+    cfg = load_run_config("config/run.toml")
+    params = controller_params(cfg, "ff+pid", load_model(cfg.resolve(cfg[""]["model"])))
+
+    class Stalling(SimTransport):
+        n = 0
+
+        def poll_measurement(self, accept):
+            self.n += 1
+            if self.n == 200:
+                time.sleep(stall_s)
+            return super().poll_measurement(accept)
+
+    plant = Plant(load_plant(cfg.resolve(cfg[""]["plant_config"])), rate, seed=0)
+    res = Loop(params, Stalling(plant), ProfileReference(lambda t: 40.0), LoopSettings(rate_hz=rate),
+               clock=RealClock()).run(0.6)
+    s = summary(res, "ff+pid", "sim")
+    assert s["compute_us"]["max"] >= stall_s * 1e6
+    assert s["overruns"] >= int(stall_s * rate) - 1
+    assert s["steps"] + s["overruns"] == int(0.6 * rate)
+    assert {f["kind"]: f["count"] for f in s["faults"]}.get("stalled") == 1
