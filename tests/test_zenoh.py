@@ -83,7 +83,7 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     assert faults["bad_reference"]["count"] > 0 and faults["bad_measurement"]["count"] > 0
     # The kill is a stale fault (a late valve at start-up is `no_measurement`); a host stall
     # longer than stale_ms mid-run would rightly add one, so count at least one.
-    assert faults["stale"]["count"] >= 1
+    assert "stale" in faults and faults["stale"]["count"] >= 1, s["faults"]
     table = rows(rec)
     state = np.array([r[6] for r in table])
     age = np.array([float(r[RECORD_COLUMNS.index("meas_age_ms")]) for r in table])

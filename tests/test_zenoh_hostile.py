@@ -206,7 +206,7 @@ def test_a_stalled_step_shows_in_the_summary():
 
         def poll_measurement(self, accept):
             self.n += 1
-            if self.n == 200:
+            if self.n == 5:
                 time.sleep(stall_s)
             return super().poll_measurement(accept)
 
