@@ -143,7 +143,7 @@ def run_plot(columns: dict, ax=None, title: str = ""):
     err = np.where(run, np.asarray(columns["ref_lpm"]) - np.asarray(columns["flow_lpm"]), np.nan)
     ax[2].plot(t, err, lw=0.4, color="C3", alpha=0.6, label="per step")
     if len(t) > 1:  # the sensor noise averaged out: the steady error reads through it
-        n = max(1, int(round(ERROR_MEAN_S / float(np.median(np.diff(t))))))
+        n = min(len(t), max(1, int(round(ERROR_MEAN_S / float(np.median(np.diff(t)))))))
         mean = np.convolve(np.nan_to_num(err), np.ones(n) / n, mode="same")
         ax[2].plot(t, np.where(run, mean, np.nan), lw=1.0, color="k", label=f"{ERROR_MEAN_S * 1e3:.0f} ms mean")
         ax[2].legend(loc="upper right", fontsize=8)

@@ -65,3 +65,22 @@ def test_negative_durations_are_bad_input(capsys):
         assert main([*verb, "--duration", "-1"]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "--duration" in err
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["run", "--json", "{bad}/s.json"], "--json"),
+    (["run", "--plot", "{bad}/p.png"], "--plot"),
+    (["run", "--record", "{bad}/r.csv"], "--record"),
+    (["run", "--report", "{bad}/rep"], "--report"),
+    (["monitor", "--record", "{bad}/m.csv"], "--record"),
+    (["sweep", "-o", "{bad}/s.csv"], "--output"),
+    (["sweep", "-o", "{ok}/s.csv", "--report", "{bad}/rep"], "--report"),
+    (["compare", "rec.csv", "--json", "{bad}/t.json"], "--json"),
+])
+def test_unwritable_outputs_are_bad_input_before_any_work(tmp_path, capsys, argv, flag):
+    blocker = tmp_path / "file"
+    blocker.write_text("")  # a file where a folder should be
+    args = [a.format(bad=blocker, ok=tmp_path) for a in argv]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and flag in err and str(blocker) in err

@@ -18,6 +18,9 @@ def run(args) -> int:
     from models.model import write_json_atomic
     from models.recording import read_recording
 
+    from controller.commands.outputs import check_outputs
+
+    check_outputs(args, files=("json", "plot"))
     rec = read_recording(args.recording)
     val = read_recording(args.validate) if args.validate else None
 

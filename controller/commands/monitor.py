@@ -31,8 +31,11 @@ def run(args) -> int:
     from controller.transport.payload import PayloadError
     from controller.transport.zenoh import open_session, raw_payload, zenoh
 
+    from controller.commands.outputs import check_outputs
+
     if not args.duration >= 0:
         raise InputError(f"--duration: must be >= 0, got {args.duration}")
+    check_outputs(args, files=("record",), folders=())
     cfg = load_run_config(args.config)
     key = f"vent/valve/{cfg['zenoh']['id']}/ctrl/status"
     session = open_session(cfg, None, args.connect, role="monitor", certs=args.certs)

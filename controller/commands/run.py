@@ -54,6 +54,9 @@ def run(args) -> int:
     from controller.loop import RECORD_COLUMNS, Loop, ProfileReference
     from controller.run_summary import RunResult, summary_text
 
+    from controller.commands.outputs import check_outputs
+
+    check_outputs(args)
     cfg = load_run_config(args.config)
     top = cfg[""]
     word = args.controller or top["controller"]

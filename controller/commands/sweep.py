@@ -19,16 +19,17 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    import numpy as np
-
     from models.model import write_json_atomic
     from models.recording import InputError
 
     from controller.sweep import runner
     from controller.sweep.spec import apply, load_sweep, write_run_config
 
+    from controller.commands.outputs import check_outputs
+
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers: must be positive, got {args.workers}")
+    check_outputs(args, files=("output", "json", "plot", "best_config"))
     s = load_sweep(args.config)
     r = runner.run_sweep(s, args.scheduler, args.workers)
     runner.write_csv(r, args.output)
