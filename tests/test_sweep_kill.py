@@ -43,6 +43,7 @@ def test_a_killed_sweep_leaves_no_worker(tmp_path, sig):
     p = subprocess.Popen([sys.executable, "-m", "controller.cli", "sweep", "--workers", "2", "-o",
                           str(tmp_path / "sweep.csv")], cwd=ROOT, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL)
+    workers: list[int] = []
     try:
         wait_for(lambda: len(children(p.pid)) >= 2, "the sweep's two workers", (p,))
         workers = children(p.pid)
@@ -56,8 +57,9 @@ def test_a_killed_sweep_leaves_no_worker(tmp_path, sig):
         if p.poll() is None:
             p.kill()
             p.wait()
-        for w in children(p.pid):
-            os.kill(w, signal.SIGKILL)
+        for w in workers + children(p.pid):  # the test never leaves a worker behind, even when it fails
+            if alive(w):
+                os.kill(w, signal.SIGKILL)
 
 
 def test_a_worker_whose_parent_is_already_gone_exits_at_once():
