@@ -45,10 +45,11 @@ class Effect:
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("asymmetric_hysteresis", "relative", 0.3, (0.05, 1.0), (0.0, 10.0),
-           "descending branch wider than the ascending one, growing with flow: every play "
-           "operator's descending threshold grows by a s h, h the model's mean operator "
-           "half-width, s = 0 at the bottom and 1 at the top of the identified duty range "
-           "(a = 1: twice as wide at full flow)"),
+           "descending branch wider than the ascending one, growing with flow: a play operator "
+           "of descending threshold a s h on the model's input (on a PI, every operator's "
+           "descending threshold grown by a s h), h the half-width of the model's major loop "
+           "at mid flow, s = 0 at the bottom and 1 at the top of the identified duty range "
+           "(a = 1: twice as wide at full flow); any model kind"),
     Effect("coil_heating", "K", 20.0, (5.0, 40.0), (0.0, 200.0),
            "coil temperature, first order (tau minutes) driven by coil power ∝ duty², "
            "settles this many K above ambient at 55 % duty; resistance +0.393 %/K, so the "
