@@ -10,8 +10,9 @@ and its 0.5 L/min sensor noise) and each protocol duration:
    working range, never seen by the identification): RMSE;
 3. the lag and delay against the twin's;
 4. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
-   steady MAE and IAE of the run's controller, and of ``pid`` (the sweep's
-   best PID, same run configuration) as the baseline measured in the same run.
+   steady MAE and IAE of the run's controller, and of ``pid`` as the baseline
+   measured in the same run: the sweep's best PID (same run configuration)
+   and the twin's own ``run.toml`` PID gains (untuned for it).
 
 Prints one table. Usage::
 
@@ -52,8 +53,10 @@ def twin_config(name: str, folder: str) -> str:
     s = copy.deepcopy(base.sections)
     s["effects"] = {"valve_dynamics": TAU_S, "transport_delay": DELAY_S}
     s["loop"]["rt_priority"] = 0
-    # a shared 2-core machine stalls processes for a few hundred ms, and a node may take long to start
-    s["identify"].update(stale_ms=1000.0, wait_s=120.0)
+    # A shared 2-core machine (load 15-25 while this ran) stalls processes for hundreds of ms and a node may
+    # take long to start; each stall past the node's command timeout closes the valve and wipes its memory.
+    s["identify"].update(stale_ms=5000.0, wait_s=120.0, tune_candidates=60)
+    s["valve_node"]["command_timeout_ms"] = 1000.0
     path = os.path.join(folder, f"twin_{name}.toml")
     write_run_config(dataclasses.replace(base, sections=s), path)
     return path
@@ -64,8 +67,10 @@ def valvectl(*args) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True)
 
 
-def node(cfg: str, ep: str, json_path: str) -> subprocess.Popen:
-    return valvectl("valve-node", "--config", cfg, "--listen", ep, "--connect", "tcp/127.0.0.1:1", "--json", json_path)
+def node(cfg: str, ep: str, json_path: str, listen: bool = True) -> subprocess.Popen:
+    """A valve-node on ``ep``: listening there (identify connects) or connecting to it (run listens)."""
+    where = ["--listen", ep, "--connect", "tcp/127.0.0.1:1"] if listen else ["--connect", ep]
+    return valvectl("valve-node", "--config", cfg, *where, "--json", json_path)
 
 
 def stop(p: subprocess.Popen):
@@ -94,8 +99,9 @@ def held_out_rmse(cfg_path: str, out: str) -> float:
 
 def closed_loop(cfg: str, run_toml: str, out: str, word: str | None) -> dict:
     ep = f"tcp/127.0.0.1:{free_port()}"
-    n = node(cfg, ep, os.path.join(out, f"n_run_{word or 'default'}.json"))
-    s_json = os.path.join(out, f"run_{word or 'default'}.json")
+    tag = f"{word or 'default'}{'_shipped' if run_toml == cfg else ''}"
+    n = node(cfg, ep, os.path.join(out, f"n_run_{tag}.json"), listen=False)
+    s_json = os.path.join(out, f"run_{tag}.json")
     args = ["run", "--plant", "zenoh", "--config", run_toml, "--listen", ep, "--duration", str(RUN_S), "--json", s_json]
     if word:
         args += ["--controller", word]
@@ -136,10 +142,13 @@ def one(name: str, duration: float, root: str) -> dict:
     run_toml = os.path.join(out, "run.toml")
     best = closed_loop(cfg, run_toml, folder, None)
     pid = closed_loop(cfg, run_toml, folder, "pid")
+    shipped = closed_loop(cfg, cfg, folder, "pid")  # the twin's own run.toml gains: the untuned baseline
     row.update(steady_mae=best["tracking"]["steady_mae_lpm"], iae=best["tracking"]["iae"],
                iae_pid=pid["tracking"]["iae"], steady_mae_pid=pid["tracking"]["steady_mae_lpm"],
-               faults=[f["kind"] for f in best["faults"]], overruns=best["overruns"])
+               iae_pid_shipped=shipped["tracking"]["iae"], faults=[f["kind"] for f in best["faults"]],
+               overruns=best["overruns"])
     row["iae_ratio"] = row["iae"] / row["iae_pid"]
+    row["iae_ratio_shipped"] = row["iae"] / row["iae_pid_shipped"]
     with open(os.path.join(folder, "bench.json"), "w") as fh:
         json.dump(row, fh, indent=1)
     return row
@@ -158,11 +167,11 @@ def main() -> None:
             rows.append(r)
             print(json.dumps(r), flush=True)
     print(f"\n{'twin':<6}{'dur s':>7}{'model':>9}{'tau ms':>8}{'err':>7}{'delay ms':>9}{'err':>7}{'held-out':>9}"
-          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}")
+          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'/shipped':>9}")
     for r in rows:
         print(f"{r['twin']:<6}{r['duration_s']:7.0f}{r['model']:>9}{r['tau_ms']:8.2f}{r['tau_err']:7.1%}"
               f"{r['delay_ms']:9.2f}{r['delay_err']:7.1%}{r['held_out_rmse']:9.2f}{r['controller']:>8}"
-              f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}")
+              f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}{r['iae_ratio_shipped']:9.2f}")
 
 
 if __name__ == "__main__":
