@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from models.recording import InputError
+from models.recording import MAX_RATE_HZ, InputError
 from models.schema import Finite, KeyId, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
@@ -29,8 +29,7 @@ from .supervisor import SupervisorSettings
 
 DEFAULT_RUN = "config/run.toml"
 
-#: Fastest loop or node rate accepted, Hz (the controller runs at 1 kHz; delay lines are sized by rate).
-MAX_RATE_HZ = 100_000.0
+#: Loop or node rate, Hz, up to the fastest any verb accepts (the controller runs at 1 kHz; delay lines are sized by it).
 RateHz = Annotated[float, msgspec.Meta(gt=0.0, le=MAX_RATE_HZ)]
 #: Longest valve lag or delay the controllers model, s (the effects' own limits: plant_sim.effects).
 Seconds10 = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]

@@ -16,7 +16,7 @@ from .metrics import Metrics, metrics
 from .model_schema import KINDS as KIND_SCHEMAS
 from .model import FittedModel
 from .preprocess import Scaling, preprocess
-from .recording import InputError, Recording
+from .recording import InputError, Recording, check_fittable
 
 KINDS = ("pi", "pi-asym", "pi-mod", "preisach", "preisach-cont", "bouc-wen")
 
@@ -49,8 +49,10 @@ def fit_model(
     """
     if kind not in KINDS:
         raise InputError(f"--model: unknown kind {kind!r} (one of {', '.join(KINDS)})")
-    if n is not None and n < 1:
-        raise InputError(f"--n: must be at least 1, got {n}")
+    max_n = KIND_SCHEMAS[kind].max_n
+    if n is not None and not 1 <= n <= max(max_n, 1):
+        raise InputError(f"--n: must be 1..{max_n} for {kind}, got {n}" if max_n else
+                         f"--n: {kind} has no resolution to set, got {n}")
     start = time.perf_counter()
     pre = preprocess(t_s, x, y)
     xs, ys = Scaling.from_data(x), Scaling.from_data(y)
@@ -63,7 +65,8 @@ def fit_model(
 
 
 def fit_recording(kind: str, rec: Recording, n: int | None = None) -> FittedModel:
-    """Fit ``kind`` to a valve recording (duty in, flow out)."""
+    """Fit ``kind`` to a valve recording (duty in, flow out); one without enough rows or excitation is refused."""
+    check_fittable(rec)
     return fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm, n=n, source=rec.path)
 
 

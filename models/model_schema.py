@@ -11,16 +11,16 @@ struct registered for the kind, so a bad file names its field exactly::
 How to add a model kind
 -----------------------
 Write one struct for the kind's ``params`` (the dict its core's
-``to_params`` returns and ``from_params`` reads), with the constrained types
-of :mod:`models.schema` and its shape rules in ``__post_init__``, and
-register it::
+``to_params`` returns and ``from_params`` reads), with the bounded numbers
+below (``Coefficient``, ``Threshold``) and its shape rules in
+``__post_init__``, and register it::
 
     class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
-        r: list[NonNegative]
+        r: list[Threshold]
         ...
 
     register("pi-mod", "models.pi_mod:PIModModel", PIModParams,
-             inverse=("inverse-pi-mod", "models.pi_mod:InversePIMod", InversePIModParams))
+             inverse=("inverse-pi-mod", "models.pi_mod:InversePIMod", InversePIModParams), max_n=2000)
 
 That is all: :func:`models.model.core_class` and :func:`models.model.load_model`
 find the kind through :data:`KINDS`.
@@ -28,11 +28,19 @@ find the kind through :data:`KINDS`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 
-from .schema import Finite, NonNegative, Positive
+from .schema import Finite
+
+#: Largest magnitude of any number in a model file. Cores work in normalized units (inputs and
+#: outputs within [-1, 1]), so their numbers are O(1) (inverse weights up to 1/MIN_SLOPE = 1e3);
+#: the bound keeps every prediction, and a fit's sums of squares on it, finite.
+LIMIT = 1e9
+Coefficient = Annotated[float, msgspec.Meta(ge=-LIMIT, le=LIMIT)]
+Threshold = Annotated[float, msgspec.Meta(ge=0.0, le=LIMIT)]
+ScaleRange = Annotated[float, msgspec.Meta(gt=0.0, le=LIMIT)]
 
 #: Most operators/relays a model file may hold (the paper's largest, Preisach n = 50, has 1275).
 MAX_ELEMENTS = 100_000
@@ -51,6 +59,7 @@ class Kind:
     params: type
     file: type
     inverse_of: str | None = None
+    max_n: int = 0
 
 
 #: kind word -> :class:`Kind` (forward kinds and their inverses).
@@ -60,8 +69,8 @@ KINDS: dict[str, Kind] = {}
 class Scale(msgspec.Struct, forbid_unknown_fields=True):
     """Affine map to the model's [-1, 1]: ``u = (x - center) / half_range``."""
 
-    center: Finite
-    half_range: Positive
+    center: Coefficient
+    half_range: ScaleRange
     name: str | None = None
 
 
@@ -93,10 +102,10 @@ def _ascending(values: list, name: str) -> None:
 class PIParams(msgspec.Struct, forbid_unknown_fields=True):
     """Eq. (4): thresholds ``r`` (ascending, >= 0), weights ``w``, offset, optional memory ``y0``."""
 
-    r: list[NonNegative]
-    w: list[Finite]
-    offset: Finite = 0.0
-    y0: list[Finite] | None = None
+    r: list[Threshold]
+    w: list[Coefficient]
+    offset: Coefficient = 0.0
+    y0: list[Coefficient] | None = None
 
     def __post_init__(self):
         _same_length(self, ("r", "w"), ("y0",))
@@ -106,10 +115,10 @@ class PIParams(msgspec.Struct, forbid_unknown_fields=True):
 class InversePIParams(msgspec.Struct, forbid_unknown_fields=True):
     """Eq. (7): inverse thresholds and weights (``w[0] = 1/w_1`` of the forward, nonzero)."""
 
-    r: list[NonNegative]
-    w: list[Finite]
-    offset: Finite = 0.0
-    x0: list[Finite] | None = None
+    r: list[Threshold]
+    w: list[Coefficient]
+    offset: Coefficient = 0.0
+    x0: list[Coefficient] | None = None
 
     def __post_init__(self):
         _same_length(self, ("r", "w"), ("x0",))
@@ -121,11 +130,11 @@ class InversePIParams(msgspec.Struct, forbid_unknown_fields=True):
 class PIAsymParams(msgspec.Struct, forbid_unknown_fields=True):
     """Asymmetric PI: thresholds, weights, descending widening ``a`` >= 0, its exponent ``p`` > 0."""
 
-    r: list[NonNegative]
-    w: list[Finite]
-    a: NonNegative = 0.0
-    p: Positive = 1.0
-    offset: Finite = 0.0
+    r: list[Threshold]
+    w: list[Coefficient]
+    a: Annotated[float, msgspec.Meta(ge=0.0, le=LIMIT)] = 0.0
+    p: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.0
+    offset: Coefficient = 0.0
 
     def __post_init__(self):
         _same_length(self, ("r", "w"))
@@ -142,13 +151,13 @@ class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
     """Kuhnen's modified PI: play part (``r``, ``w``, memory ``y0``), dead-zone superposition
     (thresholds ``h`` ascending with one zero, weights ``g``), offset and closed flow ``floor``."""
 
-    r: list[NonNegative]
-    w: list[Finite]
-    h: list[Finite]
-    g: list[Finite]
-    offset: Finite = 0.0
+    r: list[Threshold]
+    w: list[Coefficient]
+    h: list[Coefficient]
+    g: list[Coefficient]
+    offset: Coefficient = 0.0
     floor: Finite = -MAX_FLOOR
-    y0: list[Finite] | None = None
+    y0: list[Coefficient] | None = None
 
     def __post_init__(self):
         _same_length(self, ("r", "w"), ("y0",))
@@ -168,10 +177,10 @@ class InversePIModParams(msgspec.Struct, forbid_unknown_fields=True):
 class PreisachParams(msgspec.Struct, forbid_unknown_fields=True):
     """Relays ``(alpha_i, beta_i)`` with ``alpha >= beta`` and their weights ``mu``."""
 
-    alpha: list[Finite]
-    beta: list[Finite]
-    mu: list[Finite]
-    offset: Finite = 0.0
+    alpha: list[Coefficient]
+    beta: list[Coefficient]
+    mu: list[Coefficient]
+    offset: Coefficient = 0.0
 
     def __post_init__(self):
         _same_length(self, ("alpha", "beta", "mu"))
@@ -182,8 +191,8 @@ class PreisachParams(msgspec.Struct, forbid_unknown_fields=True):
 class PreisachContParams(msgspec.Struct, forbid_unknown_fields=True):
     """Everett function sampled on an (n+1) x (n+1) mesh, n >= 1."""
 
-    everett: list[list[Finite]]
-    offset: Finite = 0.0
+    everett: list[list[Coefficient]]
+    offset: Coefficient = 0.0
 
     def __post_init__(self):
         n = len(self.everett)
@@ -201,25 +210,25 @@ class BoucWenParams(msgspec.Struct, forbid_unknown_fields=True):
     branches (the fit searches exactly that region); ``0 < n <= 20``.
     """
 
-    beta: Finite
-    gamma: Finite
-    n: Positive
-    a: Finite
-    b: Finite
-    c: Finite
+    beta: Coefficient
+    gamma: Coefficient
+    n: Annotated[float, msgspec.Meta(gt=0.0, le=20.0)]
+    a: Coefficient
+    b: Coefficient
+    c: Coefficient
 
     def __post_init__(self):
         if not (self.beta + self.gamma > 0 and self.beta - self.gamma > 0):
             raise ValueError(f"beta: must exceed |gamma| (got beta {self.beta:g}, gamma {self.gamma:g})")
-        if self.n > 20:
-            raise ValueError(f"n: must be <= 20 (got {self.n:g})")
 
 
-def register(name: str, core: str, params: type, inverse: tuple[str, str, type] | None = None) -> None:
+def register(name: str, core: str, params: type, inverse: tuple[str, str, type] | None = None,
+             max_n: int = 0) -> None:
     """Register a model kind: its word, its core ``"module:Class"``, its params struct, and its inverse.
 
     ``inverse``: ``(inverse word, inverse core, inverse params struct)`` for
     invertible kinds, whose model files carry ``"inverse": {"kind", "params"}``.
+    ``max_n``: the largest resolution ``fit --n`` may ask for (0: the kind has none).
     """
     inv_field = []
     if inverse is not None:
@@ -230,17 +239,18 @@ def register(name: str, core: str, params: type, inverse: tuple[str, str, type] 
         KINDS[inv_name] = Kind(inv_name, inv_core, inv_params, inv_ref, inverse_of=name)
     file = msgspec.defstruct(f"{name}-file", [("params", params), *inv_field], bases=(ModelFile,), kw_only=True,
                              forbid_unknown_fields=True)
-    KINDS[name] = Kind(name, core, params, file)
+    KINDS[name] = Kind(name, core, params, file, max_n=max_n)
 
 
+# max_n: operators (PI kinds), levels per axis (Preisach: n (n + 1) / 2 relays), mesh points per axis
 register("pi", "models.pi:PIModel", PIParams,
-         inverse=("inverse-pi", "models.inverse_pi:InversePI", InversePIParams))
+         inverse=("inverse-pi", "models.inverse_pi:InversePI", InversePIParams), max_n=2000)
 register("pi-asym", "models.pi_asym:AsymmetricPIModel", PIAsymParams,
-         inverse=("inverse-pi-asym", "models.pi_asym:InverseAsymmetricPI", InversePIAsymParams))
+         inverse=("inverse-pi-asym", "models.pi_asym:InverseAsymmetricPI", InversePIAsymParams), max_n=2000)
 register("pi-mod", "models.pi_mod:ModifiedPIModel", PIModParams,
-         inverse=("inverse-pi-mod", "models.pi_mod:InverseModifiedPI", InversePIModParams))
-register("preisach", "models.preisach:PreisachModel", PreisachParams)
-register("preisach-cont", "models.preisach_cont:ContinuousPreisachModel", PreisachContParams)
+         inverse=("inverse-pi-mod", "models.pi_mod:InverseModifiedPI", InversePIModParams), max_n=2000)
+register("preisach", "models.preisach:PreisachModel", PreisachParams, max_n=200)
+register("preisach-cont", "models.preisach_cont:ContinuousPreisachModel", PreisachContParams, max_n=MAX_MESH - 1)
 register("bouc-wen", "models.bouc_wen:BoucWenModel", BoucWenParams)
 
 

@@ -50,7 +50,7 @@ from typing import Annotated, Any
 
 import msgspec
 
-from .recording import InputError
+from .recording import InputError, decode_utf8, read_bytes
 
 #: The largest finite float: an upper bound of ``le=MAX`` refuses +inf, and NaN fails every bound.
 MAX = sys.float_info.max
@@ -192,20 +192,10 @@ def read_json(path: str | os.PathLike, max_depth: int = MAX_JSON_DEPTH, max_byte
     import json
 
     path = os.fspath(path)
-    try:
-        size = os.path.getsize(path)
-        if size > max_bytes:
-            raise InputError(f"{path}: {size} bytes, larger than {max_bytes} for a JSON input")
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, not a JSON file") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text ({exc.reason})") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    if os.path.isfile(path) and os.path.getsize(path) > max_bytes:
+        raise InputError(f"{path}: {os.path.getsize(path)} bytes, larger than {max_bytes} for a JSON input")
+    data = read_bytes(path, "a JSON file")
+    text = decode_utf8(path, data.removeprefix(b"\xef\xbb\xbf"))
     depth = _json_depth(text)
     if depth > max_depth:
         raise InputError(f"{path}: JSON nested {depth} levels deep (at most {max_depth})")
@@ -215,41 +205,3 @@ def read_json(path: str | os.PathLike, max_depth: int = MAX_JSON_DEPTH, max_byte
         raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     except (RecursionError, ValueError) as exc:  # ValueError: an integer of more than 4300 digits
         raise InputError(f"{path}: not valid JSON ({type(exc).__name__}: {str(exc)[:80]})") from None
-
-
-def check_output(path: str | os.PathLike | None, flag: str) -> None:
-    """Refuse an output file path before any work: its folder must exist and it must not be a folder.
-
-    Parameters
-    ----------
-    path : path-like or None
-        The file a verb will write (None: not asked for).
-    flag : str
-        The option that named it, for the message (``-o``, ``--json``).
-    """
-    if path is None:
-        return
-    path = os.fspath(path)
-    if not path:
-        raise InputError(f"{flag}: empty path")
-    if os.path.isdir(path):
-        raise InputError(f"{flag} {path}: is a folder; give a file name")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise InputError(f"{flag} {path}: folder {os.path.dirname(path) or folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise InputError(f"{flag} {path}: folder {os.path.dirname(path) or folder} is not writable")
-
-
-def check_output_dir(path: str | os.PathLike | None, flag: str) -> None:
-    """Refuse an output folder path (``--report DIR``) that is an existing file or has no parent folder."""
-    if path is None:
-        return
-    path = os.fspath(path)
-    if not path:
-        raise InputError(f"{flag}: empty path")
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise InputError(f"{flag} {path}: is a file; give a folder")
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise InputError(f"{flag} {path}: folder {parent} does not exist")

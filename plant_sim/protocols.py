@@ -23,18 +23,22 @@ from typing import Callable
 
 import numpy as np
 
-from models.recording import InputError, read_table
+from models.recording import MAX_RATE_HZ, MAX_SAMPLES, InputError, read_table
 
 #: Identified duty range of the paper's bench (§2.2): 38 % is the last closed state,
 #: 72 % just above full open.
 LO_PCT, HI_PCT = 38.0, 72.0
 
 
-def _samples(rate_hz: float, duration_s: float) -> int:
-    if not rate_hz > 0:
-        raise InputError(f"--rate: must be positive, got {rate_hz:g}")
-    if not duration_s > 0:
-        raise InputError(f"--duration: must be positive, got {duration_s:g}")
+def _samples(rate_hz: float, duration_s: float, what: str = "--duration") -> int:
+    """Samples of ``duration_s`` at ``rate_hz``, checked before anything of that size is allocated."""
+    if not (math.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
+        raise InputError(f"--rate: must be > 0 and <= {MAX_RATE_HZ:g} Hz (got {rate_hz:g})")
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise InputError(f"{what}: must be a positive number of seconds (got {duration_s:g})")
+    if duration_s * rate_hz > MAX_SAMPLES:
+        raise InputError(f"{what}: {duration_s:g} s at {rate_hz:g} Hz is {duration_s * rate_hz:.3g} samples "
+                         f"(at most {MAX_SAMPLES:.0e})")
     return max(1, int(round(duration_s * rate_hz)))
 
 
@@ -191,7 +195,8 @@ def protocol(name: str, rate_hz: float, duration_s: float | None = None, seed: i
     table = read_table(name, ("t_s", "duty_pct"), ranges={"duty_pct": (0.0, 100.0)})
     t, d = table.columns["t_s"], table.columns["duty_pct"]
     span = t[-1] - t[0]
-    n = _samples(rate_hz, duration_s if duration_s is not None else max(span, 1.0 / rate_hz))
+    n = _samples(rate_hz, duration_s, "--duration") if duration_s is not None else \
+        _samples(rate_hz, max(span, 1.0 / rate_hz), f"{name}: column 't_s' (its span)")
     return np.interp(t[0] + np.arange(n) / rate_hz, t, d)
 
 

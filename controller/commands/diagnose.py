@@ -19,9 +19,12 @@ def run(args) -> int:
     from models.diagnose import diagnose_response
     from models.diagnose.report import write_json, write_predictions, write_report
     from models.model import load_model
-    from models.recording import read_recording
+    from models.recording import check_fittable, read_recording
+    from controller.commands.outputs import check_outputs
 
+    check_outputs(args, files=("json", "predictions"))
     rec = read_recording(args.recording)
+    check_fittable(rec)
     model = load_model(args.model) if args.model else None
     progress = None
     if sys.stderr.isatty():

@@ -19,7 +19,9 @@ def run(args) -> int:
     from models.fitting import evaluate, fit_recording
     from models.model import save_model, write_json_atomic
     from models.recording import read_recording
+    from controller.commands.outputs import check_outputs
 
+    check_outputs(args, files=("output", "json"), folders=())
     t0 = time.perf_counter()
     tty = sys.stderr.isatty()
 

@@ -63,8 +63,8 @@ def run(args) -> int:
     plant_kind = args.plant or top["plant"]
     ref_kind = args.reference or top["reference"]
     duration = top["duration_s"] if args.duration is None else args.duration
-    if duration < 0:
-        raise InputError(f"--duration: must be >= 0, got {duration}")
+    if not (0 <= duration < float("inf")):
+        raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), got {duration}")
     injections = [parse_inject(x) for x in args.inject]
     if injections and plant_kind != "sim":
         raise InputError("--inject: only the simulated valve (--plant sim) can be changed mid-run")

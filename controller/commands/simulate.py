@@ -49,8 +49,10 @@ def run(args) -> int:
     from models.recording import InputError, write_recording
     from plant_sim.effects import parse_effect
     from plant_sim.plant import Plant, load_plant
+    from controller.commands.outputs import check_outputs
     from plant_sim.protocols import protocol
 
+    check_outputs(args, files=("output",), folders=())
     effects = dict(parse_effect(text) for text in args.effect)
     params = load_plant(args.plant, effects)
     duty = protocol(args.protocol, args.rate, args.duration, seed=args.seed)

@@ -29,8 +29,9 @@ def run(args) -> int:
     from models.model import write_json_atomic
     from plant_sim.plant import Plant, load_plant
 
-    if args.duration is not None and not args.duration >= 0:
-        raise InputError(f"--duration: must be >= 0, got {args.duration}")
+    if args.duration is not None and not (0 <= args.duration < float("inf")):
+        raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), "
+                         f"got {args.duration}")
     duration = args.duration or None  # 0: until interrupted
     cfg = load_run_config(args.config)
     node_cfg = cfg["valve_node"]
