@@ -29,8 +29,13 @@ from .supervisor import SupervisorSettings
 
 DEFAULT_RUN = "config/run.toml"
 
-#: Loop or node rate, Hz, up to the fastest any verb accepts (the controller runs at 1 kHz; delay lines are sized by it).
-RateHz = Annotated[float, msgspec.Meta(gt=0.0, le=MAX_RATE_HZ)]
+#: Loop or node rate, Hz: from 1 Hz up to the fastest any verb accepts (the controller runs at 1 kHz; delay
+#: lines are sized by it).
+RateHz = Annotated[float, msgspec.Meta(ge=1.0, le=MAX_RATE_HZ)]
+#: A controller gain: finite, >= 0, and below what any valve loop could use.
+Gain = Annotated[float, msgspec.Meta(ge=0.0, le=1e6)]
+#: A flow, L/min, within what any valve or sensor could report.
+FlowLpm = Annotated[float, msgspec.Meta(gt=0.0, le=1e5)]
 #: Longest valve lag or delay the controllers model, s (the effects' own limits: plant_sim.effects).
 Seconds10 = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
 Seconds60 = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
@@ -45,10 +50,17 @@ class Loop(_Section):
     stale_ms: Positive = 50.0             # watchdog: no measurement for this long -> safe state
     ref_stale_ms: Positive = 500.0
     safe_duty_pct: Percent = 0.0
-    flow_max_lpm: Positive = 200.0
-    status_hz: Positive = 10.0
+    flow_max_lpm: FlowLpm = 200.0
+    status_hz: Annotated[float, msgspec.Meta(ge=0.01)] = 10.0
     spin_us: NonNegative = 300.0
     rt_priority: Annotated[int, msgspec.Meta(ge=0, le=99)] = 0
+
+    def __post_init__(self):
+        if self.status_hz > self.rate_hz:
+            raise ValueError(f"status_hz: must be <= rate_hz (got {self.status_hz:g} > {self.rate_hz:g})")
+        if self.spin_us >= 1e6 / self.rate_hz:
+            raise ValueError(f"spin_us: must be shorter than one loop period, {1e6 / self.rate_hz:g} us "
+                             f"(got {self.spin_us:g})")
 
 
 class Limits(_Section):
@@ -73,9 +85,9 @@ class Feedforward(_Section):
 
 
 class PID(_Section):
-    kp: NonNegative = 0.0
-    ki: NonNegative = 0.0
-    kd: NonNegative = 0.0
+    kp: Gain = 0.0
+    ki: Gain = 0.0
+    kd: Gain = 0.0
     tf_s: Positive = 0.003
     tt_s: Positive = 0.01
 
@@ -217,7 +229,7 @@ def check_sections(sections: dict, source: str) -> dict:
         else:
             out[""][fld.name] = value
     _check_effects(out["effects"], source)
-    _check_profile(out["profile"], source)
+    _check_profile(out["profile"], out["loop"]["flow_max_lpm"], source)
     return out
 
 
@@ -237,15 +249,28 @@ def _check_effects(effects: dict, source: str) -> None:
                              f"(got {value})") from None
 
 
-def _check_profile(profile: dict, source: str) -> None:
+#: Breath rates a profile may have, breaths per minute (high-frequency ventilation reaches 900).
+BREATH_RATE_BPM = (0.1, 1000.0)
+
+
+def _check_profile(profile: dict, flow_max_lpm: float, source: str) -> None:
+    """The ``[profile]`` table: :class:`plant_sim.protocols.BreathProfile`'s own checks, then its flows within
+    the loop's range (the loop clamps references to ``[0, flow_max_lpm]``) and a plausible breath rate."""
     from plant_sim.protocols import BreathProfile
 
     try:
-        BreathProfile(**profile)
+        p = BreathProfile(**profile)
     except TypeError as exc:
         raise InputError(f"{source}: profile: {exc}".replace("BreathProfile.__init__() got an ", "")) from None
     except ValueError as exc:
         raise InputError(f"{source}: profile: {str(exc).removeprefix('breath profile: ')}") from None
+    for name in ("peak_lpm", "base_lpm"):
+        if getattr(p, name) > flow_max_lpm:
+            raise InputError(f"{source}: profile.{name}: must be <= loop.flow_max_lpm, {flow_max_lpm:g} "
+                             f"(got {getattr(p, name):g})")
+    lo, hi = BREATH_RATE_BPM
+    if not lo <= p.breath_rate_bpm <= hi:
+        raise InputError(f"{source}: profile.breath_rate_bpm: must be within {lo:g}..{hi:g} (got {p.breath_rate_bpm:g})")
 
 
 def load_run_config(path: str | os.PathLike = DEFAULT_RUN) -> RunConfig:

@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from models.recording import MAX_RATE_HZ, MAX_SAMPLES, InputError, read_table
+from models.recording import MAX_RATE_HZ, MAX_SAMPLES, MIN_RATE_HZ, InputError, read_table
 
 #: Identified duty range of the paper's bench (§2.2): 38 % is the last closed state,
 #: 72 % just above full open.
@@ -32,8 +32,8 @@ LO_PCT, HI_PCT = 38.0, 72.0
 
 def _samples(rate_hz: float, duration_s: float, what: str = "--duration") -> int:
     """Samples of ``duration_s`` at ``rate_hz``, checked before anything of that size is allocated."""
-    if not (math.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
-        raise InputError(f"--rate: must be > 0 and <= {MAX_RATE_HZ:g} Hz (got {rate_hz:g})")
+    if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+        raise InputError(f"--rate: must be within {MIN_RATE_HZ:g}..{MAX_RATE_HZ:g} Hz (got {rate_hz:g})")
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise InputError(f"{what}: must be a positive number of seconds (got {duration_s:g})")
     if duration_s * rate_hz > MAX_SAMPLES:

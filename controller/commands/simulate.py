@@ -53,6 +53,8 @@ def run(args) -> int:
     from plant_sim.protocols import protocol
 
     check_outputs(args, files=("output",), folders=())
+    if not 0 <= args.seed < 2**63:
+        raise InputError(f"--seed: must be within 0..2**63-1 (got {args.seed})")
     effects = dict(parse_effect(text) for text in args.effect)
     params = load_plant(args.plant, effects)
     duty = protocol(args.protocol, args.rate, args.duration, seed=args.seed)
