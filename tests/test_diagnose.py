@@ -57,7 +57,7 @@ def test_cli_outputs_follow_design(free_csv, tmp_path):
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert main(["diagnose", str(tmp_path / "nope.csv"), "--json", str(tmp_path / "d.json")]) == 2
     short = tmp_path / "short.csv"
-    write_recording(short, {"t_s": np.arange(50) * 0.1, "duty_pct": np.full(50, 50.0), "flow_lpm": np.ones(50)})
+    write_recording(short, {"t_s": np.arange(50) * 0.1, "duty_pct": 40 + np.arange(50) * 0.5, "flow_lpm": np.arange(50.0)})
     assert main(["diagnose", str(short), "--json", str(tmp_path / "d.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "short.csv" in err[1] and "too short" in err[1]
