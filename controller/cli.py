@@ -19,8 +19,6 @@ import argparse  # noqa: E402
 import importlib  # noqa: E402
 import sys  # noqa: E402
 
-from models.recording import InputError  # noqa: E402
-
 #: verb -> (module, one-line help)
 VERBS = {
     "fit": ("controller.commands.fit", "fit one hysteresis model to a recording"),
@@ -83,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     resolve_default_paths(args)
+    # imported after parsing: it brings numpy, which --help and usage errors never need
+    from models.recording import InputError
+
     try:
         return int(args._run(args) or 0)
     except InputError as exc:

@@ -1,10 +1,4 @@
-"""Closed-loop simulation of a batch of controllers on simulated valves, and the grid tuning of run.toml.
-
-:func:`closed_loop` runs B candidates of one controller word against B
-simulated valves in simulated time, with the loop's timing convention (the
-flow measured at step k is the valve's answer to the duty of step k-1) but
-without the watchdog and transports of the live loop: the same laws, stepped
-as arrays.
+"""The grid tuning of run.toml, on the sweep's batched closed loop (:func:`controller.sweep.simulate.closed_loop`).
 
 :func:`grid_tune` is how the gains of ``config/run.toml`` were found: every
 combination of a small grid is simulated on the run's breath profile, on
@@ -16,51 +10,11 @@ feedforward needs no correction.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
 
 import numpy as np
 
 from .laws import control
-
-
-@dataclass(frozen=True)
-class ClosedLoop:
-    """Columns (N, B) of a batch closed-loop simulation, and per-candidate IAE (L)."""
-
-    t_s: np.ndarray
-    ref_lpm: np.ndarray
-    flow_lpm: np.ndarray
-    duty_pct: np.ndarray
-
-    def iae(self) -> np.ndarray:
-        """∫|ref - flow| dt in litres per candidate."""
-        dt = self.t_s[1] - self.t_s[0]
-        return np.sum(np.abs(self.ref_lpm[:, None] - self.flow_lpm), axis=0) * dt / 60.0
-
-
-def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, rate_hz: float,
-                preview_steps: int | np.ndarray = 0, duty0_pct: float = 0.0) -> ClosedLoop:
-    """Simulate B candidates against ``plant`` (a ``BatchPlant`` of B valves) over ``ref_lpm`` (N,).
-
-    The feedforward sees the reference ``preview_steps`` ahead (the last value past the end);
-    an array (B,) gives each candidate its own preview.
-    """
-    dt = 1.0 / rate_hz
-    B = params.batch
-    ps = plant.init(np.full(B, duty0_pct))
-    ps, out = plant.step(ps, np.full(B, duty0_pct))
-    meas = out.flow_lpm.copy()
-    s = control.init(params, meas, duty0_pct)
-    n = len(ref_lpm)
-    flow, duty = np.empty((n, B)), np.empty((n, B))
-    preview = np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,))
-    ahead = np.concatenate([ref_lpm, np.full(int(preview.max(initial=0)), ref_lpm[-1])])
-    for k in range(n):
-        s, cmd = control.step(params, s, np.full(B, ref_lpm[k]), meas, dt, ahead[k + preview])
-        flow[k], duty[k] = meas, cmd.duty_pct
-        ps, out = plant.step(ps, cmd.duty_pct)
-        meas = out.flow_lpm.copy()
-    return ClosedLoop(np.arange(n) * dt, np.asarray(ref_lpm, dtype=np.float64), flow, duty)
+from .sweep.simulate import closed_loop
 
 
 def grid_tune(make_params, grid: dict[str, list[float]], plants: list, ref_lpm, rate_hz: float,

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,8 +33,36 @@ class Limits:
         return cls(col(duty_min_pct), col(duty_max_pct), col(rate_pct_per_s))
 
 
+@njit(cache=True, inline="always")
+def maximum(a, b):
+    """``np.maximum`` of two floats: NaN propagates, a tie keeps ``a``."""
+    return a if (a >= b or a != a) else b
+
+
+@njit(cache=True, inline="always")
+def minimum(a, b):
+    """``np.minimum`` of two floats: NaN propagates, a tie keeps ``a``."""
+    return a if (a <= b or a != a) else b
+
+
+@njit(cache=True, inline="always")
+def limit(u_pct, u_prev_pct, dt_s, duty_min_pct, duty_max_pct, rate_pct_per_s):
+    """One candidate: rate limit against the previous duty, then clamp to [min, max] (the clamp wins)."""
+    step = rate_pct_per_s * dt_s
+    u = minimum(maximum(u_pct, u_prev_pct - step), u_prev_pct + step)
+    return minimum(maximum(u, duty_min_pct), duty_max_pct)
+
+
+@njit(cache=True)
+def _apply(u_pct, u_prev_pct, dt_s, lo, hi, rate, out):
+    for b in range(out.shape[0]):
+        out[b] = limit(u_pct[b], u_prev_pct[b], dt_s, lo[b], hi[b], rate[b])
+
+
 def apply(lim: Limits, u_pct: np.ndarray, u_prev_pct: np.ndarray, dt_s: float) -> np.ndarray:
-    """Rate limit against the previous duty, then clamp to [min, max] (the clamp wins)."""
-    step = lim.rate_pct_per_s * dt_s
-    u = np.minimum(np.maximum(u_pct, u_prev_pct - step), u_prev_pct + step)
-    return np.minimum(np.maximum(u, lim.duty_min_pct), lim.duty_max_pct)
+    """:func:`limit` for every candidate (arrays of shape (B,))."""
+    b = lim.duty_min_pct.shape
+    out = np.empty(b)
+    _apply(*(np.broadcast_to(np.asarray(v, dtype=np.float64), b) for v in (u_pct, u_prev_pct)), float(dt_s),
+           lim.duty_min_pct, lim.duty_max_pct, lim.rate_pct_per_s, out)
+    return out

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from . import limits
 
@@ -73,6 +74,26 @@ def init(p: PIDParams, meas_lpm, integral_pct=0.0) -> PIDState:
     )
 
 
+@njit(cache=True, inline="always")
+def update(kp, ki, kd, tf_s, tt_s, integral_pct, deriv_pct, meas_prev_lpm, ref_lpm, meas_lpm, dt_s, u_bias_pct,
+           u_prev_pct, duty_min_pct, duty_max_pct, rate_pct_per_s):
+    """One period of one candidate: ``(integral_pct, deriv_pct, u_pct)``, ``u`` after clamp and rate limit."""
+    e = ref_lpm - meas_lpm
+    d = (tf_s * deriv_pct - kd * (meas_lpm - meas_prev_lpm)) / (tf_s + dt_s)
+    v = u_bias_pct + kp * e + integral_pct + d
+    u = limits.limit(v, u_prev_pct, dt_s, duty_min_pct, duty_max_pct, rate_pct_per_s)
+    # No integral action at all for ki = 0 (P, PD candidates), back-calculation otherwise.
+    i = integral_pct + ki * e * dt_s + (dt_s / tt_s) * (u - v) if ki > 0 else 0.0
+    return i, d, u
+
+
+@njit(cache=True)
+def _step(kp, ki, kd, tf, tt, i_in, d_in, m_in, ref, meas, dt_s, bias, u_prev, lo, hi, rate, i_out, d_out, u_out):
+    for b in range(u_out.shape[0]):
+        i_out[b], d_out[b], u_out[b] = update(kp[b], ki[b], kd[b], tf[b], tt[b], i_in[b], d_in[b], m_in[b], ref[b],
+                                              meas[b], dt_s, bias[b], u_prev[b], lo[b], hi[b], rate[b])
+
+
 def step(
     p: PIDParams,
     s: PIDState,
@@ -83,14 +104,17 @@ def step(
     u_prev_pct: np.ndarray,
     lim: limits.Limits,
 ) -> tuple[PIDState, np.ndarray]:
-    """One period; returns the new state and the applied duty (after clamp and rate limit)."""
-    e = ref_lpm - meas_lpm
-    d = (p.tf_s * s.deriv_pct - p.kd * (meas_lpm - s.meas_prev_lpm)) / (p.tf_s + dt_s)
-    v = u_bias_pct + p.kp * e + s.integral_pct + d
-    u = limits.apply(lim, v, u_prev_pct, dt_s)
-    # No integral action at all for ki = 0 (P, PD candidates), back-calculation otherwise.
-    i = np.where(p.ki > 0, s.integral_pct + p.ki * e * dt_s + (dt_s / p.tt_s) * (u - v), 0.0)
-    return PIDState(i, d, meas_lpm), u
+    """:func:`update` for every candidate (arrays of shape (B,)); returns the new state and the applied duty."""
+    b = p.kp.shape
+
+    def col(v):
+        return np.broadcast_to(np.asarray(v, dtype=np.float64), b)
+
+    new = PIDState(np.empty(b), np.empty(b), col(meas_lpm).copy())
+    u = np.empty(b)
+    _step(p.kp, p.ki, p.kd, p.tf_s, p.tt_s, *s, col(ref_lpm), col(meas_lpm), float(dt_s), col(u_bias_pct),
+          col(u_prev_pct), lim.duty_min_pct, lim.duty_max_pct, lim.rate_pct_per_s, new.integral_pct, new.deriv_pct, u)
+    return new, u
 
 
 def output(p: PIDParams, s_before: PIDState, s_after: PIDState, ref_lpm, meas_lpm) -> np.ndarray:

@@ -1,11 +1,15 @@
 """Batched closed loop of a sweep: candidates x plant variants as one batch.
 
+:func:`closed_loop` runs B candidates of one controller word against B
+simulated valves in simulated time, with the live loop's timing convention
+(the flow measured at step k is the valve's answer to the duty of step k-1)
+but without its watchdog and transports: the live loop's compiled laws
+(:func:`controller.laws.control.advance`) for a batch of B instead of one.
+
 A group of C candidates of one controller word is repeated over the V plant
 variants (candidate-major: loop ``c * V + v`` is candidate c on variant v)
-and simulated as one batch of C V loops by :func:`controller.tuning.closed_loop`,
-the live loop's laws (:func:`controller.laws.control.step`) stepped as arrays
-with the live loop's timing, against a :class:`plant_sim.plant.BatchPlant`
-of the C V valves. Every loop's valve gets the same noise seed (common
+and simulated as one batch of C V loops against a
+:class:`plant_sim.plant.BatchPlant` of the C V valves. Every loop's valve gets the same noise seed (common
 random numbers: candidates are compared on the same noise, and a candidate
 run alone by ``valvectl run`` with that seed sees that same noise).
 
@@ -22,9 +26,51 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.laws import control
-from controller.tuning import closed_loop
 
 from . import metrics
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """Columns (N, B) of a batch closed-loop simulation, and per-candidate IAE (L)."""
+
+    t_s: np.ndarray
+    ref_lpm: np.ndarray
+    flow_lpm: np.ndarray
+    duty_pct: np.ndarray
+
+    def iae(self) -> np.ndarray:
+        """∫|ref - flow| dt in litres per candidate."""
+        dt = self.t_s[1] - self.t_s[0]
+        return np.sum(np.abs(self.ref_lpm[:, None] - self.flow_lpm), axis=0) * dt / 60.0
+
+
+def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, rate_hz: float,
+                preview_steps: int | np.ndarray = 0, duty0_pct: float = 0.0) -> ClosedLoop:
+    """Simulate B candidates against ``plant`` (a ``BatchPlant`` of B valves) over ``ref_lpm`` (N,).
+
+    The feedforward sees the reference ``preview_steps`` ahead (the last value past the end);
+    an array (B,) gives each candidate its own preview.
+    """
+    dt = 1.0 / rate_hz
+    B = params.batch
+    ps = plant.init(np.full(B, duty0_pct))
+    ps, out = plant.step(ps, np.full(B, duty0_pct))
+    meas = np.ascontiguousarray(out.flow_lpm)
+    s = control.init(params, meas, duty0_pct)
+    kernel = params.kernel
+    n = len(ref_lpm)
+    flow, duty = np.empty((n, B)), np.empty((n, B))
+    preview = np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,))
+    ahead = np.concatenate([ref_lpm, np.full(int(preview.max(initial=0)), ref_lpm[-1])])
+    ref_now, cmd = np.empty(B), np.empty((B, 3))
+    for k in range(n):
+        ref_now.fill(ref_lpm[k])
+        control.advance(kernel, s, ref_now, meas, ahead[k + preview], dt, cmd)
+        flow[k], duty[k] = meas, cmd[:, 0]
+        ps, out = plant.step(ps, duty[k])
+        meas = np.ascontiguousarray(out.flow_lpm)
+    return ClosedLoop(np.arange(n) * dt, np.asarray(ref_lpm, dtype=np.float64), flow, duty)
 
 
 def stack_params(items: list):

@@ -1,0 +1,44 @@
+"""Write reference.json: the rows of sweep.toml as the numpy laws of commit 5630bab computed them.
+
+Checks the commit out into a temporary git worktree, runs the sweep there
+(with this checkout's Python environment) and stores every column at full
+precision. Usage: ``python tests/data/sweep_reference/make_reference.py [COMMIT]``.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(HERE)))
+
+RUN = """
+import json, math, sys
+from controller.sweep import runner, spec
+r = runner.run_sweep(spec.load_sweep(sys.argv[1]), workers=1)
+def cell(v):
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+table = {c: [cell(v if isinstance(v, str) or v is None else float(v)) for v in r.table[c]] for c in r.columns}
+json.dump({"commit": sys.argv[3], "columns": r.columns, "table": table}, open(sys.argv[2], "w"))
+"""
+
+
+def main() -> None:
+    commit = sys.argv[1] if len(sys.argv) > 1 else "5630bab"
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = os.path.join(tmp, "tree")
+        subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", tree, commit], check=True,
+                       stdout=subprocess.DEVNULL)
+        try:
+            subprocess.run([sys.executable, "-c", RUN, os.path.join(HERE, "sweep.toml"),
+                            os.path.join(HERE, "reference.json"), commit], cwd=tree, check=True,
+                           env={**os.environ, "PYTHONPATH": tree})
+        finally:
+            subprocess.run(["git", "-C", ROOT, "worktree", "remove", "--force", tree], check=True)
+    print(f"{HERE}/reference.json from {commit}")
+
+
+if __name__ == "__main__":
+    main()
