@@ -9,7 +9,7 @@ import pytest
 from controller.alarms import AlarmSettings, Alarms
 from controller.cli import main
 from controller.config import load_run_config, preview_s, supervisor
-from controller.laws import kalman, pid
+from controller.laws import control
 from controller.loop import Loop, ProfileReference, SimClock
 from controller.transport.sim import SimTransport
 from models.recording import InputError
@@ -91,21 +91,23 @@ def test_a_switch_with_a_tight_rate_limit_is_still_bumpless(cfg, model, tmp_path
 
 
 def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model, monkeypatch):
-    real_update, real_pid = kalman.update, pid.step
+    real_step = control.step
     clock = {"t": 0.0}
 
     def nan_after(t_fail):
-        def update(p, s, z):
-            s = real_update(p, s, z)
-            return s._replace(bias_lpm=s.bias_lpm * np.nan) if clock["t"] >= t_fail else s
-        return update
+        def step(p, s, *a):
+            if p.mode == "ff+kf" and clock["t"] >= t_fail:  # the filter's bias estimate turns NaN
+                s = s.copy()
+                s.x[:, control.BIAS_EST] = np.nan
+            return real_step(p, s, *a)
+        return step
 
     class Clocked(Modes):
         def command(self, duty_pct, t_s):
             clock["t"] = t_s
             super().command(duty_pct, t_s)
 
-    monkeypatch.setattr(kalman, "update", nan_after(0.5))
+    monkeypatch.setattr(control, "step", nan_after(0.5))
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     i = int(np.searchsorted(c["t_s"], 0.5 - 1e-9)) + 1  # the first step whose law reads the NaN
@@ -113,15 +115,16 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
     assert np.all(np.isfinite(c["duty_pct"])) and np.all(c["state"] == 0)
     assert np.max(np.abs(np.diff(c["duty_pct"]))) <= rate_step(cfg) + 1e-9
     kinds = {f["kind"] for f in res.faults.to_list()}
-    # the inverse PI maps a NaN flow to a duty of 0, so the NaN shows in the filter's innovation first
     assert "fallback" in kinds and kinds & {"bad_command", "innovation_diverged"}
 
     # the fallback fails too: the fault state, with the safe duty
-    def pid_nan(*a):
-        s, u = real_pid(*a)
-        return s, u * np.nan if clock["t"] >= 0.7 else u
+    def pid_nan(p, s, *a):
+        new, cmd = real_step(p, s, *a)
+        if p.mode == "ff+pid" and clock["t"] >= 0.7:
+            cmd = cmd._replace(duty_pct=cmd.duty_pct * np.nan)
+        return new, cmd
 
-    monkeypatch.setattr(pid, "step", pid_nan)
+    monkeypatch.setattr(control, "step", pid_nan)
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     after = c["t_s"] > 0.7 + 0.002
@@ -131,19 +134,21 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
 
 def test_a_diverging_filter_hands_over_to_ff_pid(cfg, model, monkeypatch):
     """A filter whose flow estimate is scaled by 1.5 each step (a wrong gain) diverges: its innovation grows."""
-    real_update = kalman.update
+    real_step = control.step
     clock = {"t": 0.0}
 
-    def diverging(p, s, z):
-        s = real_update(p, s, z)
-        return s._replace(flow_lpm=s.flow_lpm * 1.5) if clock["t"] >= 0.4 else s
+    def diverging(p, s, *a):
+        new, cmd = real_step(p, s, *a)
+        if p.mode == "ff+kf" and clock["t"] >= 0.4:
+            new.x[:, control.FLOW_EST] *= 1.5
+        return new, cmd
 
     class Clocked(Modes):
         def command(self, duty_pct, t_s):
             clock["t"] = t_s
             super().command(duty_pct, t_s)
 
-    monkeypatch.setattr(kalman, "update", diverging)
+    monkeypatch.setattr(control, "step", diverging)
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     kinds = {f["kind"]: f["first_s"] for f in res.faults.to_list()}

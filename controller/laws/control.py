@@ -26,18 +26,62 @@ law's own output (the PID's ``kp e + I + D``; for ``ff+kf`` the duty the
 bias correction adds, ``invPI(F r - bias_hat) - invPI(F r)``); and
 ``limit_pct``, what the rate limit and the clamp took away, so
 ``duty = ff + fb + limit`` always.
+
+One compiled kernel steps every word (:func:`advance`): it loops over the
+candidates and calls each law's one implementation, the numba functions of
+:mod:`.pid`, :mod:`.kalman`, :mod:`.limits` and :mod:`.feedforward`. The
+live loop calls it for its batch of one (microseconds a step), the sweep
+for hundreds of candidates at once. Parameters are packed once per
+:class:`ControllerParams` (:attr:`ControllerParams.kernel`); the state is
+one matrix per batch plus the feedforward model's operator memory and the
+Kalman filter's model history, advanced in place by :func:`advance` and
+copied by the pure :func:`step`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from . import feedforward as ffw
 from . import kalman, limits, pid
 
 MODES = ("pid", "ff", "ff+pid", "ff+kf")
+PID, FF, FF_PID, FF_KF = range(4)
+
+# -- parameter columns of Kernel.P (B, N_PARAMS) --
+(DUTY_MIN, DUTY_MAX, RATE, KP, KI, KD, TF, TT, KF_A, KF_GAIN_FLOW, KF_GAIN_BIAS, KF_DELAY, LEAD_S, LAG_S,
+ N_PARAMS) = range(15)
+
+# -- state columns of ControllerState.x (B, N_STATE) --
+(DUTY, INTEGRAL, DERIV, MEAS_PREV, FLOW_EST, BIAS_EST, LEAD_REF, LEAD_OUT, N_STATE) = range(9)
+
+
+
+class Kernel(NamedTuple):
+    """:class:`ControllerParams` as the kernel takes it: the word's index, the lead's presence, the
+    parameter matrix (columns above) and the feedforward's model (:func:`feedforward.arrays`; a bank
+    of no operators without feedforward, of the same types, so one compiled kernel serves every word)."""
+
+    mode: int
+    lead: bool
+    P: np.ndarray
+    bank: tuple
+
+
+def _no_bank(batch: int) -> tuple:
+    """A model bank of no operators: the feedforward's types for the words without one."""
+    import dataclasses
+
+    def of(f):
+        shape = (batch,) if f.name in ("method", "a", "p", "offset", "floor", "closed", "duty_center", "duty_half",
+                                       "flow_center", "flow_half", "ready_margin_pct") else (batch, 0)
+        return np.zeros(shape, dtype=np.int64 if f.name == "method" else np.float64)
+
+    return tuple(of(f) for f in dataclasses.fields(ffw.ModelBank))
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,13 +125,69 @@ class ControllerParams:
     def batch(self) -> int:
         return self.limits.duty_min_pct.shape[0]
 
+    @cached_property
+    def kernel(self) -> Kernel:
+        """The packed form, built once (parameters are frozen)."""
+        B = self.batch
+        P = np.zeros((B, N_PARAMS))
+        lim = self.limits
+        P[:, DUTY_MIN], P[:, DUTY_MAX], P[:, RATE] = lim.duty_min_pct, lim.duty_max_pct, lim.rate_pct_per_s
+        if self.pid is not None:
+            g = self.pid
+            P[:, KP], P[:, KI], P[:, KD], P[:, TF], P[:, TT] = g.kp, g.ki, g.kd, g.tf_s, g.tt_s
+        if self.kf is not None:
+            k = self.kf
+            P[:, KF_A], P[:, KF_GAIN_FLOW], P[:, KF_GAIN_BIAS], P[:, KF_DELAY] = k.a, k.k_flow, k.k_bias, k.delay_steps
+        lead = self.lead is not None and self.forward is not None
+        if lead:
+            P[:, LEAD_S], P[:, LAG_S] = self.lead.lead_s, self.lead.lag_s
+        bank = self.forward.arrays if self.forward is not None else _no_bank(B)
+        return Kernel(MODES.index(self.mode), lead, P, bank)
+
 
 class ControllerState(NamedTuple):
-    forward: np.ndarray | None  # forward operator memory: the valve's, as driven by the applied duty
-    pid: pid.PIDState | None
-    kf: kalman.KFState | None
-    duty_pct: np.ndarray  # last applied duty (the rate limit's memory)
-    lead: ffw.LeadState | None
+    """State of a batch, arrays the kernel advances in place.
+
+    Attributes
+    ----------
+    mode : int
+        Index in :data:`MODES` of the word this state belongs to.
+    x : ndarray, shape (B, N_STATE)
+        Last applied duty (the rate limit's memory), PID integral and
+        derivative terms and previous measurement, Kalman flow and bias
+        estimates, the lead's previous input and output (columns above).
+    forward : ndarray, shape (B, n)
+        Forward operator memory: the valve's, as driven by the applied duty (n = 0 without feedforward).
+    hist : ndarray, shape (B, L)
+        Kalman filter's model flows ``m[k]``, a ring (L = largest delay + 1).
+    pos : ndarray of int64, shape (1,)
+        Where ``m[k-1]`` was written in ``hist``.
+    """
+
+    mode: int
+    x: np.ndarray
+    forward: np.ndarray
+    hist: np.ndarray
+    pos: np.ndarray
+
+    @property
+    def duty_pct(self) -> np.ndarray:
+        return self.x[:, DUTY]
+
+    @property
+    def bias_lpm(self) -> np.ndarray:
+        """The Kalman filter's bias estimate (``ff+kf``), L/min."""
+        return self.x[:, BIAS_EST]
+
+    @property
+    def kf(self) -> kalman.KFState | None:
+        """The Kalman filter's state (``ff+kf``; views of this state), else None."""
+        if self.mode != FF_KF:
+            return None
+        return kalman.KFState(self.x[:, FLOW_EST], self.x[:, BIAS_EST], self.hist, int(self.pos[0]))
+
+    def copy(self) -> "ControllerState":
+        return ControllerState(self.mode, self.x.copy(), self.forward.copy(), self.hist.copy(), self.pos.copy())
 
 
 class Command(NamedTuple):
@@ -99,54 +199,113 @@ class Command(NamedTuple):
     limit_pct: np.ndarray  # what the rate limit and the clamp changed
 
 
+@njit(cache=True)
+def _advance(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0,
+             dc, dh, fc, fh, margin, X, Y, H, pos, ref, meas, ref_ff, dt, out):
+    # the bank's arrays come as separate arguments: the dispatcher types arrays fast, tuples slowly
+    bank = (method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh,
+            margin)
+    work = np.empty(Y.shape[1])  # the inverse's scratch
+    L = H.shape[1]
+    k_old = pos[0]
+    k_new = (k_old + 1) % L
+    for b in range(X.shape[0]):
+        p = P[b]
+        x = X[b]
+        prev = x[DUTY]
+        ff = 0.0
+        if mode == PID or mode == FF_PID:
+            integral = x[INTEGRAL]
+            if mode == FF_PID:
+                ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
+            x[INTEGRAL], x[DERIV], duty = pid.update(
+                p[KP], p[KI], p[KD], p[TF], p[TT], integral, x[DERIV], x[MEAS_PREV], ref[b], meas[b], dt, ff, prev,
+                p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+            x[MEAS_PREV] = meas[b]
+            fb = p[KP] * (ref[b] - meas[b]) + integral + x[DERIV]  # the law's own kp e + I + D
+        elif mode == FF:
+            ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
+            duty = limits.limit(ff, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+            fb = 0.0
+        else:  # ff+kf
+            ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
+            r = x[LEAD_OUT] if has_lead else ref_ff[b]
+            m = H[b, (k_old - int(p[KF_DELAY])) % L]
+            x[FLOW_EST], x[BIAS_EST] = kalman.correct(p[KF_A], p[KF_GAIN_FLOW], p[KF_GAIN_BIAS], x[FLOW_EST],
+                                                      x[BIAS_EST], m, meas[b])
+            u = ff
+            if r > 0.0:  # a reference of no flow closes the valve whatever the bias estimate says
+                u = ffw.invert_one(bank, b, Y[b], work, r - x[BIAS_EST])
+            duty = limits.limit(u, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+            fb = u - ff
+        if mode != PID:
+            model = ffw.forward_one(bank, b, Y[b], duty)  # the model's memory follows the applied duty
+            if mode == FF_KF:
+                H[b, k_new] = model
+        x[DUTY] = duty
+        out[b, 0] = duty
+        out[b, 1] = ff
+        out[b, 2] = fb
+        out[b, 3] = duty - ff - fb
+    if mode == FF_KF:
+        pos[0] = k_new
+
+
+@njit(cache=True, inline="always")
+def _feedforward(has_lead, p, x, bank, b, memory, work, ref_ff, dt):
+    # F r (the lag inversion, stepped here once per period), then the model's inverse from the
+    # forward memory, which saw the duty actually applied (Eq. 7): a duty the limits cut short
+    # leaves no mismatch behind, and the forward flow m[k] is exactly the flow the inverse aimed at
+    r = ref_ff
+    if has_lead:
+        r = ffw.lead(p[LEAD_S], p[LAG_S], x[LEAD_REF], x[LEAD_OUT], r, dt)
+        x[LEAD_REF] = ref_ff
+        x[LEAD_OUT] = r
+    return ffw.invert_one(bank, b, memory, work, r)
+
+
+def advance(k: Kernel, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, ref_ff_lpm: np.ndarray,
+            dt_s: float, out: np.ndarray) -> None:
+    """One period for every candidate, in place: ``s`` advances, ``out`` (B, 4) receives duty, ff, fb, limit (%).
+
+    The hot loops' form of :func:`step` (no allocation): arrays (B,) of
+    float64, ``k`` from :attr:`ControllerParams.kernel`.
+    """
+    _advance(k.mode, k.lead, k.P, *k.bank, s.x, s.forward, s.hist, s.pos, ref_lpm, meas_lpm, ref_ff_lpm, dt_s, out)
+
+
 def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:
-    """Cold start: integral and bias zero, derivative and filter at ``meas_lpm``, valve at ``duty0_pct``."""
-    b = (p.batch,)
-    meas = np.broadcast_to(np.asarray(meas_lpm, dtype=np.float64), b)
-    duty = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), b).copy()
-    fwd = ffw.init(p.forward, duty) if p.forward is not None else None
-    pst = pid.init(p.pid, meas) if p.pid is not None else None
-    kst = kalman.init(p.kf, meas) if p.kf is not None else None
-    # The lead starts at rest at zero flow: the first reference is a step for it.
-    lst = ffw.lead_init(p.lead, 0.0) if (p.lead is not None and p.forward is not None) else None
-    return ControllerState(fwd, pst, kst, duty, lst)
+    """Cold start: integral and bias zero, derivative and filter at ``meas_lpm``, valve at ``duty0_pct``.
+
+    The lead starts at rest at zero flow: the first reference is a step for it.
+    """
+    B = p.batch
+    meas = np.broadcast_to(np.asarray(meas_lpm, dtype=np.float64), (B,))
+    x = np.zeros((B, N_STATE))
+    x[:, DUTY] = duty0_pct
+    x[:, MEAS_PREV] = meas
+    x[:, FLOW_EST] = meas
+    fwd = ffw.init(p.forward, x[:, DUTY]) if p.forward is not None else np.zeros((B, 0))
+    L = int(p.kf.delay_steps.max()) + 1 if p.kf is not None else 1
+    hist = np.repeat(meas[:, None], L, axis=1)  # model flows before the start: the flow measured
+    return ControllerState(MODES.index(p.mode), x, fwd, hist, np.zeros(1, dtype=np.int64))
 
 
-def step(p: ControllerParams, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, dt_s: float,
-         ref_ff_lpm: np.ndarray | None = None):
-    """One period for every candidate: ``(state, Command)``.
+def step(p: ControllerParams, s: ControllerState, ref_lpm, meas_lpm, dt_s: float, ref_ff_lpm=None):
+    """One period for every candidate: ``(state, Command)``, ``s`` left as it was.
 
     ``ref_ff_lpm`` is the feedforward's reference (``ref_lpm`` when None).
     """
-    fwd, pst, kst, lst = s.forward, s.pid, s.kf, s.lead
-    if p.mode == "pid":
-        pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, 0.0, s.duty_pct, p.limits)
-        fb = pid.output(p.pid, s.pid, pst, ref_lpm, meas_lpm)
-        return s._replace(pid=pst, duty_pct=duty), Command(duty, np.zeros_like(duty), fb, duty - fb)
+    B = p.batch
 
-    r = ref_lpm if ref_ff_lpm is None else ref_ff_lpm
-    if lst is not None:
-        lst, r = ffw.lead_step(p.lead, lst, r, dt_s)
-    # The inverse starts from the forward model's memory, which saw the duty actually applied
-    # (Eq. 7), so a duty the limits cut short leaves no mismatch behind and the forward
-    # model's flow m[k] is exactly the flow the inverse aimed at.
-    ff = ffw.invert(p.forward, fwd, r)
-    if p.mode == "ff":
-        duty = limits.apply(p.limits, ff, s.duty_pct, dt_s)
-        fb = np.zeros_like(duty)
-    elif p.mode == "ff+pid":
-        pst, duty = pid.step(p.pid, pst, ref_lpm, meas_lpm, dt_s, ff, s.duty_pct, p.limits)
-        fb = pid.output(p.pid, s.pid, pst, ref_lpm, meas_lpm)
-    else:  # ff+kf
-        kst = kalman.update(p.kf, kst, meas_lpm)
-        # A reference of no flow closes the valve whatever the bias estimate says.
-        u = np.where(r > 0.0, ffw.invert(p.forward, fwd, r - kst.bias_lpm), ff)
-        duty = limits.apply(p.limits, u, s.duty_pct, dt_s)
-        fb = u - ff
-    fwd, model = ffw.step(p.forward, fwd, duty)
-    if kst is not None:
-        kst = kalman.push(kst, model)
-    return ControllerState(fwd, pst, kst, duty, lst), Command(duty, ff, fb, duty - ff - fb)
+    def col(v):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (B,)))
+
+    s = s.copy()
+    out = np.empty((B, 4))
+    advance(p.kernel, s, col(ref_lpm), col(meas_lpm), col(ref_lpm if ref_ff_lpm is None else ref_ff_lpm),
+            float(dt_s), out)
+    return s, Command(out[:, 0], out[:, 1], out[:, 2], out[:, 3])
 
 
 def resume(p: ControllerParams, s: ControllerState, meas_lpm, duty_applied_pct) -> ControllerState:
@@ -157,13 +316,15 @@ def resume(p: ControllerParams, s: ControllerState, meas_lpm, duty_applied_pct) 
     estimate restart at the fresh measurement; the integral and the bias
     estimate are held from before the gap.
     """
-    duty = np.broadcast_to(np.asarray(duty_applied_pct, dtype=np.float64), (p.batch,)).copy()
-    return s._replace(
-        forward=ffw.step(p.forward, s.forward, duty)[0] if s.forward is not None else None,
-        pid=pid.resume(s.pid, meas_lpm) if s.pid is not None else None,
-        kf=kalman.resume(s.kf, meas_lpm) if s.kf is not None else None,
-        duty_pct=duty,
-    )
+    s = s.copy()
+    x = s.x
+    x[:, DUTY] = duty_applied_pct
+    x[:, DERIV] = 0.0
+    x[:, MEAS_PREV] = meas_lpm
+    x[:, FLOW_EST] = meas_lpm
+    if p.forward is not None:
+        s = s._replace(forward=ffw.step(p.forward, s.forward, x[:, DUTY])[0])
+    return s
 
 
 def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> ControllerState:
@@ -176,13 +337,16 @@ def transfer(p: ControllerParams, s_old: ControllerState, ref_lpm, meas_lpm) -> 
     law had one.
     """
     s = init(p, meas_lpm, s_old.duty_pct)
-    if s.lead is not None:
-        s = s._replace(lead=ffw.lead_init(p.lead, ref_lpm))
-    if s_old.kf is not None and s.kf is not None:
-        s = s._replace(kf=s.kf._replace(bias_lpm=s_old.kf.bias_lpm.copy()))
-    if s.pid is not None:
+    x = s.x
+    if p.kernel.lead:
+        x[:, LEAD_REF] = x[:, LEAD_OUT] = ref_lpm  # at rest at the reference
+    if s_old.mode == FF_KF and p.kf is not None:
+        x[:, BIAS_EST] = s_old.bias_lpm
+    if p.pid is not None:
         ff = ffw.invert(p.forward, s.forward, ref_lpm) if p.forward is not None else 0.0
-        s = s._replace(pid=pid.transfer(p.pid, s.pid, ref_lpm, meas_lpm, ff, s_old.duty_pct))
+        g = pid.transfer(p.pid, pid.PIDState(x[:, INTEGRAL], x[:, DERIV], x[:, MEAS_PREV]), ref_lpm, meas_lpm, ff,
+                         s_old.duty_pct)
+        x[:, INTEGRAL], x[:, DERIV], x[:, MEAS_PREV] = g
     return s
 
 

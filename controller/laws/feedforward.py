@@ -205,15 +205,28 @@ def _step(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, c
 
 
 @njit(cache=True)
+def invert_one(bk, j, state, work, ref):
+    """The feedforward duty (%) of candidate j for flow ``ref`` (L/min) from ``state``; ``work``: scratch (n,)."""
+    closed, fc, fh, margin = bk[13], bk[17], bk[18], bk[19]
+    if ref > 0.0:
+        return _solve(bk, j, state, work, ref, closed[j])
+    # no flow asked: ready, just below the flow's onset on the present branch
+    onset = max(closed[j] * fh[j] + fc[j], 0.0)
+    return _solve(bk, j, state, work, onset, -np.inf) - margin[j]
+
+
+@njit(cache=True)
+def forward_one(bk, j, state, duty):
+    """Model flow (L/min) of candidate j after duty ``duty`` (%); advances ``state`` in place."""
+    return _forward(bk, j, state, duty)
+
+
+@njit(cache=True)
 def _invert(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, state, ref, out):
     bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin)
     work = np.empty(state.shape[1])
     for j in range(ref.shape[0]):
-        if ref[j] > 0.0:
-            out[j] = _solve(bk, j, state[j], work, ref[j], closed[j])
-        else:  # no flow asked: ready, just below the flow's onset on the present branch
-            onset = max(closed[j] * fh[j] + fc[j], 0.0)
-            out[j] = _solve(bk, j, state[j], work, onset, -np.inf) - margin[j]
+        out[j] = invert_one(bk, j, state[j], work, ref[j])
 
 
 def step(bank: ModelBank, state: np.ndarray, duty_pct) -> tuple[np.ndarray, np.ndarray]:
@@ -275,7 +288,21 @@ def lead_init(p: LeadParams, ref0_lpm) -> LeadState:
     return LeadState(r, r.copy())
 
 
+@njit(cache=True, inline="always")
+def lead(lead_s, lag_s, ref_prev_lpm, out_prev_lpm, ref_lpm, dt_s):
+    """One period of ``F(s)`` for one candidate by backward Euler: ``lag (y - y') / dt + y = lead (r - r') / dt + r``."""
+    return (lag_s * out_prev_lpm + lead_s * (ref_lpm - ref_prev_lpm) + dt_s * ref_lpm) / (lag_s + dt_s)
+
+
+@njit(cache=True)
+def _lead(lead_s, lag_s, ref_prev, out_prev, ref, dt_s, out):
+    for b in range(out.shape[0]):
+        out[b] = lead(lead_s[b], lag_s[b], ref_prev[b], out_prev[b], ref[b], dt_s)
+
+
 def lead_step(p: LeadParams, s: LeadState, ref_lpm: np.ndarray, dt_s: float) -> tuple[LeadState, np.ndarray]:
-    """One period of ``F(s)`` by backward Euler: ``lag (y - y') / dt + y = lead (r - r') / dt + r``."""
-    y = (p.lag_s * s.out_prev_lpm + p.lead_s * (ref_lpm - s.ref_prev_lpm) + dt_s * ref_lpm) / (p.lag_s + dt_s)
-    return LeadState(ref_lpm, y), y
+    """:func:`lead` for every candidate (arrays of shape (B,))."""
+    r = np.broadcast_to(np.asarray(ref_lpm, dtype=np.float64), p.lead_s.shape).copy()
+    y = np.empty(p.lead_s.shape)
+    _lead(p.lead_s, p.lag_s, s.ref_prev_lpm, s.out_prev_lpm, r, float(dt_s), y)
+    return LeadState(r, y), y

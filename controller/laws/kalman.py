@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
+from numba import njit
 
 
 def matrices(tau_s: float, dt_s: float, q_flow_lpm: float, q_bias_lpm: float, r_lpm: float):
@@ -59,6 +59,8 @@ def design(tau_s: float, dt_s: float, q_flow_lpm: float, q_bias_lpm: float, r_lp
 
 def steady_gain(F, H, Q, R) -> np.ndarray:
     """Steady-state Kalman gain (shape (2,)) from the prior covariance of the DARE."""
+    import scipy.linalg  # here: the loop's and the CLI's modules load without scipy
+
     P = scipy.linalg.solve_discrete_are(F.T, H.T, Q, R)
     S = H @ P @ H.T + R
     return (P @ H.T / S).ravel()
@@ -115,22 +117,53 @@ def init(p: KFParams, flow0_lpm, model0_lpm=None, bias0_lpm=0.0) -> KFState:
     return KFState(flow, np.broadcast_to(np.asarray(bias0_lpm, dtype=np.float64), b).copy(), hist, 0)
 
 
+@njit(cache=True, inline="always")
+def prediction(a, flow_lpm, bias_lpm, model_lpm):
+    """One candidate's flow predicted for this step from the delayed model flow ``m[k-1-d]``, L/min."""
+    return a * flow_lpm + (1.0 - a) * (model_lpm + bias_lpm)
+
+
+@njit(cache=True, inline="always")
+def correct(a, k_flow, k_bias, flow_lpm, bias_lpm, model_lpm, z_lpm):
+    """One candidate: predict with ``m[k-1-d]``, correct with the measurement ``z[k]``; ``(flow, bias)``."""
+    flow_pred = prediction(a, flow_lpm, bias_lpm, model_lpm)
+    innov = z_lpm - flow_pred
+    return flow_pred + k_flow * innov, bias_lpm + k_bias * innov
+
+
 def delayed_model(p: KFParams, s: KFState) -> np.ndarray:
     """``m[k-1-d]``: the model flow of the duty applied one period plus the transport delay ago, L/min."""
     n = s.model_hist_lpm.shape[1]
     return s.model_hist_lpm[np.arange(len(p.a)), (s.pos - p.delay_steps) % n]
 
 
+@njit(cache=True)
+def _predict(a, flow, bias, m, out):
+    for b in range(out.shape[0]):
+        out[b] = prediction(a[b], flow[b], bias[b], m[b])
+
+
 def predict(p: KFParams, s: KFState) -> np.ndarray:
-    """The flow predicted for this step from ``m[k-1-d]``, L/min (the measurement minus it is the innovation)."""
-    return p.a * s.flow_lpm + (1.0 - p.a) * (delayed_model(p, s) + s.bias_lpm)
+    """:func:`prediction` for every candidate (the measurement minus it is the innovation), L/min."""
+    out = np.empty(p.a.shape)
+    _predict(p.a, np.ascontiguousarray(s.flow_lpm), np.ascontiguousarray(s.bias_lpm), delayed_model(p, s), out)
+    return out
+
+
+@njit(cache=True)
+def _update(a, kf, kb, flow, bias, m, z, flow_out, bias_out):
+    for b in range(flow_out.shape[0]):
+        flow_out[b], bias_out[b] = correct(a[b], kf[b], kb[b], flow[b], bias[b], m[b], z[b])
 
 
 def update(p: KFParams, s: KFState, z_lpm: np.ndarray) -> KFState:
-    """Predict with ``m[k-1-d]`` then correct with the measurement ``z[k]``."""
-    flow_pred = predict(p, s)
-    innov = z_lpm - flow_pred
-    return KFState(flow_pred + p.k_flow * innov, s.bias_lpm + p.k_bias * innov, s.model_hist_lpm, s.pos)
+    """:func:`correct` for every candidate (arrays of shape (B,))."""
+    b = p.a.shape
+    flow, bias = np.empty(b), np.empty(b)
+    _update(p.a, p.k_flow, p.k_bias, np.ascontiguousarray(s.flow_lpm), np.ascontiguousarray(s.bias_lpm),
+            delayed_model(p, s), np.ascontiguousarray(np.broadcast_to(np.asarray(z_lpm, dtype=np.float64), b)),
+            flow, bias)
+    return KFState(flow, bias, s.model_hist_lpm, s.pos)
 
 
 def push(s: KFState, model_lpm: np.ndarray) -> KFState:
