@@ -118,8 +118,10 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
     assert "fallback" in kinds and kinds & {"bad_command", "innovation_diverged"}
 
     # the fallback fails too: the fault state, with the safe duty
+    kf_nan = nan_after(0.5)
+
     def pid_nan(p, s, *a):
-        new, cmd = real_step(p, s, *a)
+        new, cmd = kf_nan(p, s, *a)
         if p.mode == "ff+pid" and clock["t"] >= 0.7:
             cmd = cmd._replace(duty_pct=cmd.duty_pct * np.nan)
         return new, cmd

@@ -63,7 +63,7 @@ def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, ra
     flow, duty = np.empty((n, B)), np.empty((n, B))
     preview = np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,))
     ahead = np.concatenate([ref_lpm, np.full(int(preview.max(initial=0)), ref_lpm[-1])])
-    ref_now, cmd = np.empty(B), np.empty((B, 3))
+    ref_now, cmd = np.empty(B), np.empty((B, 4))
     for k in range(n):
         ref_now.fill(ref_lpm[k])
         control.advance(kernel, s, ref_now, meas, ahead[k + preview], dt, cmd)
