@@ -1,4 +1,4 @@
-"""Write reference.json: the rows of sweep.toml as the numpy laws computed them before they were compiled (commit 5291291).
+"""Write reference.json: the rows of sweep.toml as the numpy laws computed them before they were compiled (commit a3541a9).
 
 Checks the commit out into a temporary git worktree, runs the sweep there
 (with this checkout's Python environment) and stores every column at full
@@ -26,7 +26,7 @@ json.dump({"commit": sys.argv[3], "columns": r.columns, "table": table}, open(sy
 
 
 def main() -> None:
-    commit = sys.argv[1] if len(sys.argv) > 1 else "5291291"
+    commit = sys.argv[1] if len(sys.argv) > 1 else "a3541a9"
     with tempfile.TemporaryDirectory() as tmp:
         tree = os.path.join(tmp, "tree")
         subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", tree, commit], check=True,
