@@ -9,6 +9,9 @@ def add_arguments(p) -> None:
     p.add_argument("--model", default=None, metavar="MODEL.json",
                    help="the simulation to hold the recording against (default: the paper's PI, n = 50, "
                         "fitted on the recording's training rows)")
+    p.add_argument("--config", default=None, metavar="RUN.toml",
+                   help="for a closed-loop run recording (valvectl run --record): hold it against the model "
+                        "its feedforward used, the run configuration's model file (instead of --model)")
     p.add_argument("--json", required=True, metavar="D.json", help='{"baseline", "findings", "model"}')
     p.add_argument("--predictions", default=None, metavar="P.csv",
                    help="t_s, flow_lpm, baseline_lpm, augmented_lpm, holdout per recording row")
@@ -25,7 +28,13 @@ def run(args) -> int:
     check_outputs(args, files=("json", "predictions"))
     rec = read_recording(args.recording)
     check_fittable(rec)
-    model = load_model(args.model) if args.model else None
+    model_path = args.model
+    if args.config:
+        from controller.config import load_run_config
+
+        cfg = load_run_config(args.config)
+        model_path = cfg.resolve(cfg[""]["model"])
+    model = load_model(model_path) if model_path else None
     progress = None
     if sys.stderr.isatty():
         def progress(word):

@@ -13,9 +13,17 @@ follow DESIGN.md, Diagnosis:
    (:mod:`.folds`) against margins calibrated on effect-free recordings
    (:mod:`.calibrate`).
 4. *Model*: named effects are added greedily, all coefficients refitted (:mod:`.design`),
-   parameters reported in physical units with a plausibility check.
-5. *Show*: the final holdout (rows never used to fit anything) gives the
-   before/after RMSE of every finding.
+   each word's exact law refined by bounded nonlinear least squares, parameters
+   reported in physical units with a plausibility check.
+5. *Confirm*: on the final holdout (rows never used to fit anything) each
+   finding must lower the RMSE, and the residual it explains must follow its
+   correction (slope and correlation of the residual against the correction).
+6. *Show*: the holdout before/after RMSE of every finding; the words the
+   excitation cannot show are said to be not identifiable on it.
+
+A closed-loop run recording (``valvectl run --record``: a ``state`` column) is
+diagnosed on its longest stretch of ``running`` rows; the excitation is then
+the controller's own duty.
 """
 from __future__ import annotations
 
@@ -28,10 +36,12 @@ from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
 from .design import build, fit_baseline, fit_final, fixed_base, unbend
-from .detectors import AMBIGUOUS, EFFECTS, select_effects
+from .detectors import AMBIGUOUS, Selection, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
-from .signals import WORK_RATE_HZ, raw_signals, work_signals
+from .signals import Signals, noise_lpm, raw_signals, running_rows, work_signals
+from .trace import UNCONFIRMED, Decision, explain
+from .words import DYNAMIC, VOCABULARY
 
 
 @dataclass(frozen=True)
@@ -55,6 +65,9 @@ class Finding:
     alternative_to : str, optional
         The named word this one fits as well as (a lag for a delay or the reverse): it is not in
         the augmented model's chain.
+    slope, correlation : float
+        Holdout residual before the finding regressed on its correction: the slope (1: the
+        correction is the residual's size) and the correlation.
     """
 
     effect: str
@@ -65,10 +78,15 @@ class Finding:
     holdout_rmse_after: float
     params: dict
     alternative_to: str | None = None
+    slope: float = float("nan")
+    correlation: float = float("nan")
 
     def to_dict(self) -> dict:
-        return {"effect": self.effect, "where": self.where, "evidence": self.evidence, "score": self.score,
-                "holdout_rmse_before": self.holdout_rmse_before, "holdout_rmse_after": self.holdout_rmse_after}
+        d = {"effect": self.effect, "where": self.where, "evidence": self.evidence, "score": self.score,
+             "holdout_rmse_before": self.holdout_rmse_before, "holdout_rmse_after": self.holdout_rmse_after}
+        if self.alternative_to is not None:
+            d["alternative_to"] = self.alternative_to
+        return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,7 +96,7 @@ class Diagnosis:
     Attributes
     ----------
     t_s, duty_pct, flow_lpm : ndarray
-        The recording.
+        The recording (for a closed-loop run, its running rows).
     baseline_lpm, augmented_lpm : ndarray
         Baseline and augmented predictions (equal when nothing is found).
     steps_lpm, before_lpm : list of ndarray
@@ -95,6 +113,8 @@ class Diagnosis:
         Where the baseline residual is.
     model : dict
         The baseline, the augmented model and the decision details (D.json ``model``).
+    trace : list of Decision
+        Every test of the search and what was decided.
     """
 
     t_s: np.ndarray
@@ -109,6 +129,7 @@ class Diagnosis:
     findings: list
     location: Location
     model: dict = field(default_factory=dict)
+    trace: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         """D.json: ``{"baseline": {"mae","rmse","r"}, "findings": [...], "model": {...}}``."""
@@ -116,8 +137,32 @@ class Diagnosis:
                 "model": self.model}
 
 
+#: A finding's holdout residual must follow its correction: the least-squares slope of the
+#: residual before it on the correction at least this (0.5: the correction is at most twice
+#: what it explains) ...
+MIN_SLOPE = 0.5
+#: ... and their correlation at least this.
+MIN_CORRELATION = 0.1
+#: An effect the excitation shows by less than this fraction of the noise RMS (at a plausible size)
+#: is reported as not identifiable on it.
+VISIBLE = 0.5
+
+
 def _rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e)))
+
+
+def follows(resid: np.ndarray, delta: np.ndarray) -> tuple[float, float]:
+    """Slope and correlation of ``resid`` regressed on ``delta``, both through the origin.
+
+    Through the origin, because a correction is a change of the prediction, not a shape up to a
+    constant: a sensor offset's constant correction follows a residual that has its mean.
+    """
+    dd, rr = float(delta @ delta), float(resid @ resid)
+    if dd <= 0 or rr <= 0:
+        return 0.0, 0.0
+    dr = float(delta @ resid)
+    return dr / dd, dr / np.sqrt(dd * rr)
 
 
 def diagnose_response(rec: Recording, model: FittedModel | None = None, margins: Margins | None = None,
@@ -128,9 +173,11 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     ----------
     rec : Recording
         The recording (``t_s``, ``duty_pct``, ``flow_lpm``; ``supply_bar`` and
-        ``coil_temp_c`` are used when present).
+        ``coil_temp_c`` drive their laws when present; a ``state`` column marks a
+        closed-loop run, whose ``running`` rows are used).
     model : FittedModel, optional
-        The simulation to hold the recording against (held fixed).
+        The simulation to hold the recording against (held fixed); for a closed-loop
+        run, the model its feedforward used.
     margins : Margins, optional
         Decision margins; the calibrated ones by default.
     progress : callable, optional
@@ -142,6 +189,7 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         When the recording is too short for blocked cross-validation.
     """
     margins = margins or load_margins()
+    rec = running_rows(rec)
     raw = raw_signals(rec)
     sig = work_signals(rec)
     try:
@@ -150,21 +198,78 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         raise InputError(f"{rec.path}: {exc}") from None
     base = fit_baseline(sig, folds) if model is None else fixed_base(model, sig)
     sel = select_effects(base, sig, folds, margins, progress=progress)
-
     hold = folds.holdout_at(raw.t_s)
+    baseline_lpm = base.predict(raw, {})
+    steps, preds, unconfirmed = _confirm(sel, sig, raw, folds, hold, baseline_lpm)
+    findings, steps_lpm, before_lpm, unconfirmed = _findings(sel, steps, preds, sig, raw, folds, hold, baseline_lpm,
+                                                             margins, unconfirmed)
+    augmented = preds[-1] if preds else baseline_lpm
     y = raw.flow_lpm
-    baseline_lpm = base.model.predict(raw.duty_pct)[0]
-    steps, root = list(sel.steps), sel.reference
-    unconfirmed = {}
+    trace = sel.trace + unconfirmed
+    last = {d.word: d for d in trace}
+    named = {f.effect for f in findings}
+    model_info = {
+        "baseline": {"kind": base.model.kind,
+                     "source": "model file (held fixed)" if model is not None else
+                     "paper's symmetric PI, n = 50, fitted on the training rows only",
+                     "holdout": metrics(y[hold], baseline_lpm[hold]).to_dict()},
+        "augmented": {"effects": {f.effect: f.params for f in findings},
+                      "units": {f.effect: VOCABULARY[f.effect].units for f in findings},
+                      "plausible": {f.effect: VOCABULARY[f.effect].plausible for f in findings},
+                      "holdout": metrics(y[hold], augmented[hold]).to_dict()},
+        "rejected": {w: explain(d) for w, d in last.items() if w not in named},
+        "not_identifiable": {**sel.not_identifiable, **_invisible(sel, named, base, sig, folds)},
+        "trace": [d.to_dict() for d in trace],
+        "validation": {"holdout_fraction": float(np.mean(hold)), "cv_folds": folds.k,
+                       "blocks": len(folds.block_fold), "block_s": float(np.diff(folds.block_edges_s)[0]),
+                       "work_rate_hz": sig.rate_hz, "rows": len(raw), "margins": margins.to_dict(),
+                       "confirmation": "an effect that passes the cross-validation is asserted only if it also "
+                                       "lowers the holdout RMSE and the holdout residual follows its correction "
+                                       f"(slope >= {MIN_SLOPE}, correlation >= {MIN_CORRELATION}); the holdout "
+                                       "decides that yes or no and is never fitted on"},
+    }
+    return Diagnosis(raw.t_s, raw.duty_pct, y, baseline_lpm, augmented, steps_lpm, before_lpm, hold,
+                     metrics(y, baseline_lpm), findings, locate(raw.t_s, raw.duty_pct, y, baseline_lpm), model_info,
+                     trace)
+
+
+def _confirm(sel: Selection, sig: Signals, raw: Signals, folds: Folds, hold: np.ndarray, baseline_lpm: np.ndarray):
+    """Drop, one at a time, the first named effect the holdout does not confirm: ``(steps, chain
+    predictions, unconfirmed decisions)``."""
+    steps, unconfirmed = list(sel.steps), []
+    y = raw.flow_lpm
     while True:
-        preds = _chain_predictions(steps, sel.chain, root, sig, raw, folds, rebase=bool(unconfirmed))
-        errs = [_rmse((p - y)[hold]) for p in [baseline_lpm] + preds]
-        bad = next((i for i in range(len(steps)) if errs[i + 1] >= errs[i]), None)
+        preds = _chain_predictions(steps, sel.chain, sel.reference, sig, raw, folds, rebase=bool(unconfirmed))
+        bad = None
+        for i, (prev, pred) in enumerate(zip([baseline_lpm] + preds, preds)):
+            why = _unconfirmed(y[hold] - prev[hold], pred[hold] - prev[hold])
+            if why:
+                bad = i, why
+                break
         if bad is None:
-            break
-        unconfirmed[steps[bad].word] = (f"passed the cross-validation but did not lower the holdout RMSE "
-                                        f"({errs[bad]:.4f} -> {errs[bad + 1]:.4f} L/min): not asserted")
-        del steps[bad]
+            return steps, preds, unconfirmed
+        i, why = bad
+        d = next(d for d in sel.trace if d.word == steps[i].word and d.outcome == "named")
+        unconfirmed.append(Decision(**{**d.to_dict(), "outcome": UNCONFIRMED, "why": why}))
+        del steps[i]
+
+
+def _unconfirmed(resid: np.ndarray, delta: np.ndarray) -> str | None:
+    """Why a correction ``delta`` does not explain the holdout residual ``resid`` before it, or None."""
+    before, after = _rmse(resid), _rmse(resid - delta)
+    if after >= before:
+        return f"holdout RMSE {before:.4f} -> {after:.4f} L/min, not lower"
+    slope, corr = follows(resid, delta)
+    if slope < MIN_SLOPE or corr < MIN_CORRELATION:
+        return (f"the holdout residual does not follow the correction (slope {slope:.3g}, needs {MIN_SLOPE}; "
+                f"correlation {corr:.3g}, needs {MIN_CORRELATION})")
+    return None
+
+
+def _findings(sel, steps, preds, sig, raw, folds, hold, baseline_lpm, margins, unconfirmed):
+    """The findings of the confirmed chain, each lag/delay with its alternative when the recording
+    cannot tell them apart."""
+    y = raw.flow_lpm
     findings, steps_lpm, before_lpm = [], [], []
     prev = baseline_lpm
     for i, step in enumerate(steps):
@@ -173,11 +278,14 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         if alt is not None:
             kept = [s.word for s in steps[:i]]
             alt_chain = {w: p for w, p in alt[1].items() if w in kept or w == alt[0].word}
-            alt_base = alt[0].base or (steps[i - 1].base if i else root)
+            alt_base = alt[0].base or (steps[i - 1].base if i else sel.reference)
             theta = fit_final(build(alt_base, sig, alt_chain), sig.flow_lpm, folds.train)
             alt_pred = build(alt_base, raw, alt_chain).predict(theta)
-            if _rmse((alt_pred - y)[hold]) >= errs[i]:
-                unconfirmed[alt[0].word] = f"alternative to {step.word} that did not lower the holdout RMSE"
+            why = _unconfirmed(y[hold] - prev[hold], alt_pred[hold] - prev[hold])
+            if why:
+                d = next(d for d in sel.trace if d.word == alt[0].word)
+                unconfirmed = unconfirmed + [Decision(**{**d.to_dict(), "outcome": UNCONFIRMED,
+                                                         "why": f"alternative to {step.word}: {why}"})]
                 alt_pred = None
         note = ""
         if alt_pred is not None:
@@ -196,27 +304,32 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
             steps_lpm.append(alt_pred)
             before_lpm.append(prev)
         prev = preds[i]
-    augmented = prev
-    model_info = {
-        "baseline": {"kind": base.model.kind,
-                     "source": "model file (held fixed)" if model is not None else
-                     "paper's symmetric PI, n = 50, fitted on the training rows only",
-                     "holdout": metrics(y[hold], baseline_lpm[hold]).to_dict()},
-        "augmented": {"effects": {f.effect: f.params for f in findings},
-                      "units": {f.effect: EFFECTS[f.effect].units for f in findings},
-                      "plausible": {f.effect: EFFECTS[f.effect].plausible for f in findings},
-                      "holdout": metrics(y[hold], augmented[hold]).to_dict()},
-        "rejected": {**sel.rejected, **unconfirmed},
-        "not_identifiable": sel.not_identifiable,
-        "validation": {"holdout_fraction": float(np.mean(hold)), "cv_folds": folds.k,
-                       "blocks": len(folds.block_fold), "block_s": float(np.diff(folds.block_edges_s)[0]),
-                       "work_rate_hz": sig.rate_hz, "margins": margins.to_dict(),
-                       "confirmation": "an effect that passes the cross-validation is asserted only if it also "
-                                       "lowers the holdout RMSE; the holdout decides that yes or no and is never "
-                                       "fitted on"},
-    }
-    return Diagnosis(raw.t_s, raw.duty_pct, y, baseline_lpm, augmented, steps_lpm, before_lpm, hold,
-                     metrics(y, baseline_lpm), findings, locate(raw.t_s, raw.duty_pct, y, baseline_lpm), model_info)
+    return findings, steps_lpm, before_lpm, unconfirmed
+
+
+def _invisible(sel: Selection, named: set, base, sig: Signals, folds: Folds) -> dict:
+    """The time-response words not named whose plausible size this excitation shows by less than
+    :data:`VISIBLE` of the noise: not identifiable on it, rather than absent."""
+    out = {}
+    noise = noise_lpm(sig.flow_lpm)
+    cur = sel.steps[-1].base if sel.steps and sel.steps[-1].base is not None else sel.reference
+    q0 = build(cur, sig, sel.chain)
+    theta = fit_final(q0, sig.flow_lpm, folds.train)
+    before = q0.predict(theta)
+    for w, word in VOCABULARY.items():
+        if w in named or not word.probe or w in sel.not_identifiable:
+            continue
+        d = build(cur, sig, {**sel.chain, w: word.probe})
+        # the change the effect makes at a plausible size, less what the refitted baseline absorbs of it
+        rest = sig.flow_lpm - (d.predict(theta) - before)
+        absorbed = d.predict(fit_final(d, rest, folds.train))
+        shown = _rmse((d.predict(theta) - before) - (absorbed - before))
+        if shown < VISIBLE * noise:
+            size = ", ".join(f"{k} = {v:g} {word.units.get(k, '')}".rstrip() for k, v in word.probe.items())
+            out[w] = (f"not identifiable on this excitation: at {size} it changes the prediction by "
+                      f"{shown:.3g} L/min RMS beyond what the baseline absorbs, under {VISIBLE:g} x the noise "
+                      f"({noise:.3g} L/min)")
+    return out
 
 
 def _chain_predictions(steps, chain: dict, root, sig, raw, folds, rebase: bool) -> list:
@@ -236,10 +349,12 @@ def _chain_predictions(steps, chain: dict, root, sig, raw, folds, rebase: bool) 
 
 def _finding(step, params: dict, margins: Margins, raw, y, hold, before, after, note: str,
              alternative_to: str | None = None) -> Finding:
-    eff = EFFECTS[step.word]
+    eff = VOCABULARY[step.word]
     ptxt = ", ".join(f"{k} = {v:.4g} {eff.units.get(k, '')}".rstrip() for k, v in params.items())
-    evidence = (f"{eff.physics}; held-out squared error {-100 * step.gain:.1f} % over {len(step.test_after)} "
-                f"blocked folds (margin -{100 * margins.gain[step.word]:.1f} %), lower in {step.wins} of them; "
-                f"fitted {ptxt} (plausible){note}")
+    slope, corr = follows((y - before)[hold], (after - before)[hold])
+    evidence = (f"{eff.physics}; {step.law} law; held-out squared error {-100 * step.gain:.1f} % over "
+                f"{len(step.test_after)} blocked folds (margin -{100 * margins.gain[step.word]:.1f} %), lower in "
+                f"{step.wins} of them; holdout residual against the correction: slope {slope:.2f}, correlation "
+                f"{corr:.2f}; fitted {ptxt} (plausible){note}")
     return Finding(step.word, where(raw.t_s, raw.duty_pct, y, after - before), evidence, round(float(step.gain), 6),
-                   _rmse((before - y)[hold]), _rmse((after - y)[hold]), params, alternative_to)
+                   _rmse((before - y)[hold]), _rmse((after - y)[hold]), params, alternative_to, slope, corr)

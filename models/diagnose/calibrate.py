@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .words import WORDS
+
 PATH = Path(__file__).with_name("margins.json")
 #: Margin over the largest effect-free gain.
 SAFETY = 1.5
@@ -56,8 +58,6 @@ class Margins:
 
 def load_margins(path: str | Path = PATH) -> Margins:
     """The calibrated margins (the floor for any effect the file does not list)."""
-    from .detectors import WORDS
-
     try:
         d = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:

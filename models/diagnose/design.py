@@ -36,10 +36,11 @@ from .. import play
 from ..model import FittedModel
 from ..pi import PIModel, fit_pi, fit_weights
 from ..preprocess import Scaling
+from .. import pi_asym
 from . import effects as fx
 from .folds import Folds
-from .residuals import branch
 from .signals import Signals
+from .words import VOCABULARY, Columns
 
 #: Relative ridge on the normal equations (keeps a column that is all zero harmless).
 RIDGE = 1e-10
@@ -61,7 +62,7 @@ class Base:
     shape : PIModel
         A PI whose output is in the model's normalized output unit, giving the
         loop shape for the asymmetric-branch column (the model itself when it
-        is a PI).
+        is a PI; for ``refit``, the PI with the weights of this base).
     shape_scale : Scaling
         Duty scaling of ``shape``'s input.
     lift_w : ndarray
@@ -86,48 +87,114 @@ class Base:
     def y_half(self) -> float:
         return self.model.y_scale.half_range
 
-    def response(self, sig: Signals) -> tuple:
-        """Prediction, loop offset, descending lift and ``x dq/dx`` (all L/min) on ``sig``'s duty (cached)."""
-        k = id(sig)
-        hit = self.cache.get(k)
-        if hit is None and self.parent is not None:
-            hit = self.cache[k] = (self.model.predict(sig.duty_pct)[0],) + self.parent.response(sig)[1:]
+    @property
+    def root(self) -> "Base":
+        return self.parent or self
+
+    def _cached(self, key, make, keep: int = 4):
+        """``make()`` cached under ``key``; at most ``keep`` entries of its kind (``key[0]``) besides
+        those of the raw duty (an entry of operator outputs is N x m)."""
+        hit = self.cache.get(key)
         if hit is None:
+            same = [k for k in self.cache if k[0] == key[0] and k[2:] != ((),)]
+            for old in same[:max(0, len(same) - keep + 1)]:
+                del self.cache[old]
+            hit = self.cache[key] = make()
+        return hit
+
+    def predict(self, sig: Signals, chain: dict) -> np.ndarray:
+        """Prediction (L/min) on ``sig`` under the input-side laws of ``chain`` (effective duty,
+        lifted descending thresholds), cached."""
+        x, a, key = inputs(sig, chain)
+        if self.refit or (a > 0 and isinstance(self.model.core, PIModel)):
+            w, c = (self.shape.w, self.shape.offset) if self.refit else (self.model.core.w, self.model.core.offset)
+            return self._cached(("q", id(sig), key),
+                                lambda: self.model.y_scale.from_unit(self.regressors(sig, chain) @ w + c))
+        return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz))
+
+    def bends(self, sig: Signals) -> tuple:
+        """Loop offset, descending lift and ``x dq/dx`` (all L/min) of the root baseline on ``sig``'s duty:
+        the ways a PI fitted with an effect present bends (cached)."""
+        root = self.root
+        if root is not self:
+            return root.bends(sig)
+
+        def make():
             x = sig.duty_pct
-            q = self.model.predict(x)[0]
             x_unit = self.shape_scale.to_unit(x)
-            ops = pi_columns(self.shape.r, x_unit, self.shape.y0)
+            ops = self.regressors(sig, {})
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
             lift = fx.descending_lift(ops, x_unit, self.shape.r) @ self.lift_w * self.y_half
             # relative duty step of the central difference: a few threshold spacings of a 50-operator
             # PI (a fitted PI's slope within one segment is its noisiest feature), about the current
             # change of a coil some ten kelvin warm (0.393 %/K)
             eps = 0.05
-            slope = (self.model.predict(x * (1 + eps))[0] - self.model.predict(x * (1 - eps))[0]) / (2 * eps)
-            if len(self.cache) > 8:
-                self.cache.clear()
-            hit = self.cache[k] = (q, loop, lift, slope)
-        return hit
+            slope = (simulated(self.model, x * (1 + eps), sig.rate_hz)
+                     - simulated(self.model, x * (1 - eps), sig.rate_hz)) / (2 * eps)
+            return loop, lift, slope
 
+        return self._cached(("B", id(sig)), make)
 
-    def regressors(self, sig: Signals) -> np.ndarray:
-        """The baseline PI's play operator outputs on ``sig``'s duty (cached)."""
-        k = ("P", id(sig))
-        hit = self.cache.get(k)
-        if hit is None:
-            hit = self.cache[k] = pi_columns(self.shape.r, self.shape_scale.to_unit(sig.duty_pct), self.shape.y0)
-        return hit
+    def regressors(self, sig: Signals, chain: dict) -> np.ndarray:
+        """The baseline PI's play operator outputs on the effective duty of ``chain``, with its
+        descending thresholds lifted by the chain's asymmetry (cached)."""
+        x, a, key = inputs(sig, chain)
+
+        def make():
+            x_unit = self.shape_scale.to_unit(x)
+            if a > 0:
+                return pi_asym.regressors(self.shape.r, a, 1.0, x_unit)
+            return pi_columns(self.shape.r, x_unit, self.shape.y0)
+
+        # every base refitted from one root shares its thresholds: the operator outputs are the root's
+        return self.root._cached(("P", id(sig), key), make, keep=2)
 
     def regressors_at_sensor(self, sig: Signals, chain: dict) -> np.ndarray:
         """:meth:`regressors` through the dead zone, delay and lag of ``chain`` (cached: a joint test
         refits the PI under the same chain at every grid point of the effect it tests)."""
-        k = ("S", id(sig), repr(sorted(chain.items())))
-        hit = self.cache.get(k)
+        rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
+        k = ("S", id(sig), inputs(sig, chain)[2], repr(sorted(rest.items())))
+        cache = self.root.cache
+        hit = cache.get(k)
         if hit is None:
-            for old in [key for key in self.cache if isinstance(key, tuple) and key[0] == "S"]:
-                del self.cache[old]  # one chain at a time: each entry is N x m
-            hit = self.cache[k] = at_sensor(self.regressors(sig), sig, chain)
+            for old in [key for key in cache if isinstance(key, tuple) and key[0] == "S"]:
+                del cache[old]  # one chain at a time: each entry is N x m
+            hit = cache[k] = at_sensor(self.regressors(sig, chain), sig, rest)
         return hit
+
+
+def simulated(model: FittedModel, duty_pct: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Flow (L/min) of a model file run as the simulated valve runs it: a PI through plant_sim
+    without effects or sensor errors (its input held to the identified range, closing below it,
+    no reverse flow), any other kind by its own prediction. A recording is held against the
+    simulation, and a closed-loop run drives its valve far outside the identified range."""
+    if model.kind != "pi":
+        return model.predict(duty_pct)[0]
+    from plant_sim.plant import Plant, PlantParams
+
+    valve = PlantParams(model, noise_lpm=0.0, scale_factor=0.0, range_lpm=(-1e9, 1e9))
+    return Plant(valve, rate_hz).simulate(np.clip(duty_pct, 0.0, 100.0))["true_flow_lpm"]
+
+
+def inputs(sig: Signals, chain: dict) -> tuple:
+    """The duty the hysteresis core sees under ``chain`` (%), the relative lift of its descending
+    thresholds, and a hashable key of the two."""
+    key, a, warm = [], 0.0, None
+    for w, p in chain.items():
+        word = VOCABULARY[w]
+        if word.input_side and word.is_exact(p):
+            key.append((w, tuple(sorted(p.items()))))
+            a += word.threshold_lift(p)
+            warm = (word, p) if word.input_side == "duty" else warm
+    key = tuple(key)
+    x = sig.duty_pct
+    if warm is not None:
+        # the last effective duty is kept: an exact-law refinement asks for it several times per evaluation
+        x = sig.cache.get(key)
+        if x is None:
+            sig.cache.clear()
+            x = sig.cache[key] = warm[0].effective_duty(sig, warm[1])
+    return x, a, key
 
 
 def major_loop_half_width(r: np.ndarray, w: np.ndarray, n: int = 2001) -> float:
@@ -188,12 +255,12 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     sig : Signals
         Signals on the grid to build on.
     chain : dict
-        ``{effect word: {parameter: value}}`` with the nonlinear parameters
-        (see :data:`models.diagnose.detectors.EFFECTS`); linear effects have ``{}``.
+        ``{effect word: {parameter: value}}`` with the nonlinear parameters of each word
+        (:data:`models.diagnose.words.VOCABULARY`); linear effects have ``{}``.
     """
-    rate = sig.rate_hz
     n = len(sig.t_s)
-    F, loop, lift, slope = base.response(sig)
+    F = base.predict(sig, chain)
+    loop, lift, slope = base.bends(sig)
     ref = F
     names: list[str] = []
     cols = []
@@ -201,77 +268,48 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         cols += [F, np.ones(n), loop, slope]
         names += ["gain", "offset", "loop_width", "duty_scale"]
         F = np.zeros(n)
-    if "asymmetric_hysteresis" in chain:
-        # every operator's descending threshold lifted in proportion to the level (effects.descending_lift)
-        cols.append(lift)
-        names.append("asymmetric_hysteresis")
-    if "coil_heating" in chain:
-        cols.append(heating_column(sig, chain["coil_heating"], slope))
-        names.append("coil_heating")
-    if "supply_pressure" in chain:
-        cols.append(pressure_column(sig, ref))
-        names.append("supply_pressure")
+    at_valve = Columns(sig, ref, lift, slope)
+    for w, p in chain.items():
+        for col in VOCABULARY[w].valve_columns(at_valve, p):
+            cols.append(col)
+            names.append(w)
     X = np.column_stack(cols) if cols else np.zeros((n, 0))
     F, X, ref = (at_sensor(v, sig, chain) for v in (F, X, ref))
+    at_sens = Columns(sig, at_valve.flow_lpm, lift, slope, ref)
     extra = []
-    if "creep" in chain:
-        extra.append(fx.creep(ref, branch(sig.duty_pct), rate, chain["creep"]["tau_s"]))
-        names.append("creep")
-    if "sensor_offset" in chain:
-        extra.append(np.ones(n))
-        names.append("sensor_offset")
+    for w, p in chain.items():
+        for col in VOCABULARY[w].sensor_columns(at_sens, p):
+            extra.append(col)
+            names.append(w)
     if extra:
         X = np.hstack([X, np.column_stack(extra)])
-    fit_ok = np.ones(n, dtype=bool)
-    clip_hi = None
-    if "saturation" in chain:
-        clip_hi = chain["saturation"]["full_open_lpm"]
-        fit_ok = ref < clip_hi
+    clip_hi = clip_of(chain)
+    fit_ok = np.ones(n, dtype=bool) if clip_hi is None else ref < clip_hi
     return Design(F, X, tuple(names), fit_ok, clip_hi)
 
 
-def heating_column(sig: Signals, params: dict, slope: np.ndarray) -> np.ndarray:
-    """Flow change per kelvin of steady rise at 55 % duty (L/min/K), to first order in the resistance change.
-
-    The effective duty is ``x / (1 + a T)`` (:func:`effects.effective_duty`, the
-    model's own coil temperature as reference), about ``x (1 - a T)``. A cold
-    start (``start`` = 0) or a coil already at its steady rise for the first
-    duty (``start`` = 1). With the measured coil temperature the column is per
-    kelvin of its rise since the first sample (coefficient 1 for the copper law).
-    """
-    if sig.coil_temp_c is not None:
-        rise = sig.coil_temp_c - sig.coil_temp_c[0]
-    else:
-        x = sig.duty_pct
-        steady0 = (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
-        rise = fx.coil_temperature_rise(x, sig.rate_hz, params["tau_s"], 1.0, params.get("start", 1.0) * steady0)
-    return -fx.ALPHA_CU_PER_K * rise * slope
+def clip_of(chain: dict) -> float | None:
+    """The full-open flow the chain clips to, or ``None``."""
+    clips = [c for c in (VOCABULARY[w].clip_lpm(p) for w, p in chain.items()) if c is not None]
+    return min(clips) if clips else None
 
 
-def pressure_column(sig: Signals, flow_lpm: np.ndarray) -> np.ndarray:
-    """Flow change per unit of the pressure exponent (L/min), to first order in the pressure change.
-
-    ``q ((p + p_atm) / (p_mean + p_atm))**n ~ q (1 + n ln((p + p_atm) / (p_mean + p_atm)))``: the
-    supply wanders by a few per cent of the absolute pressure, so the exponent ``n`` (1 for
-    choked flow) enters linearly.
-    """
-    return np.clip(flow_lpm, 0.0, None) * np.log(fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), 1.0))
+def _clip_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
+    """Rows the chain's saturation leaves unclipped (by the base's own prediction at the sensor)."""
+    c = clip_of(chain)
+    if c is None:
+        return np.ones(len(sig), dtype=bool)
+    return at_sensor(base.predict(sig, chain), sig, chain) < c
 
 
 def at_sensor(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
     """A flow at the valve (or every column of one) as the sensor sees it: dead zone, then
     transport delay and lag."""
     gain = flow_gain(sig, chain)
-    return dynamics(v * (gain if v.ndim == 1 else gain[:, None]), sig.rate_hz, chain)
-
-
-def dynamics(v: np.ndarray, rate_hz: float, chain: dict) -> np.ndarray:
-    """Transport delay, then the first-order lag, of a flow (or of every column)."""
-    if "transport_delay" in chain:
-        v = fx.delayed(v, rate_hz, chain["transport_delay"]["delay_s"])
-    if "valve_dynamics" in chain:
-        lag = chain["valve_dynamics"]
-        v = fx.first_order_lag(v, rate_hz, lag["tau_s"], phase=lag.get("phase", 1.0))
+    if gain is not None:
+        v = v * (gain if v.ndim == 1 else gain[:, None])
+    for w, p in chain.items():
+        v = VOCABULARY[w].dynamics(v, sig.rate_hz, p)
     return v
 
 
@@ -301,7 +339,7 @@ class CVResult:
         return self.sse.sum(axis=1) - self.test
 
 
-def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     p = A.shape[0]
     lam = RIDGE * max(np.trace(A) / p, 1e-12)
     return cho_solve(cho_factor(A + lam * np.eye(p)), b)
@@ -333,7 +371,7 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
         A = np.stack([_gram(Xw[i], Xo[i]) for i in sl])
         b = np.stack([np.einsum("n,np->p", ro[i], Xw[i]) for i in sl])
         At, bt = A.sum(axis=0), b.sum(axis=0)
-        theta = np.column_stack([_solve(At - A[k], bt - b[k]) for k in range(K)])
+        theta = np.column_stack([solve(At - A[k], bt - b[k]) for k in range(K)])
     else:
         theta = np.zeros((0, K))
     if design.clip_hi is None:
@@ -356,7 +394,7 @@ def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
     if design.X.shape[1] == 0:
         return np.zeros(0)
     X = design.X[fr]
-    return _solve(X.T @ X, X.T @ (y - design.F)[fr])
+    return solve(X.T @ X, X.T @ (y - design.F)[fr])
 
 
 def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
@@ -386,60 +424,52 @@ def fixed_base(model: FittedModel, sig: Signals) -> Base:
     return Base(False, model, shape, xs, density(shape, xs, sig, y_model, every))
 
 
-def flow_gain(sig: Signals, chain: dict) -> np.ndarray:
-    """Pointwise factor on the whole flow at the valve: the dead zone's open mask."""
-    g = np.ones(len(sig.t_s))
-    if "dead_zone" in chain:
-        g = g * fx.open_mask(sig.duty_pct, chain["dead_zone"]["cracking_pct"])
+def flow_gain(sig: Signals, chain: dict) -> np.ndarray | None:
+    """Pointwise factor on the whole flow at the valve (a dead zone's open mask); ``None``: 1."""
+    g = None
+    for w, p in chain.items():
+        f = VOCABULARY[w].flow_gain(sig, p)
+        if f is not None:
+            g = f if g is None else g * f
     return g
 
 
-def refit_rows(base: Base, sig: Signals, rows: np.ndarray) -> Base:
-    """The baseline PI refitted (the paper's constrained fit) on ``rows`` only.
-
-    A static nonlinearity at the end of the range (a dead zone, a saturation)
-    bends a PI fitted through it; once the effect's law predicts the shut or
-    saturated rows, the PI is refitted without them.
-    """
-    m = base.model
-    core = fit_pi(m.x_scale.to_unit(sig.duty_pct), m.y_scale.to_unit(sig.flow_lpm), n=len(m.core.r) - 1, rows=rows)
-    model = FittedModel("pi", core, m.x_scale, m.y_scale, meta={**m.meta, "refitted": "without shut/saturated rows"})
-    return Base(True, model, core, m.x_scale, base.lift_w)
-
-
-
-#: Effects a PI fitted with them present has bent its weights to absorb (the coil heating on its
-#: input side; the supply pressure, whose droop with flow is a function of the flow; an asymmetric
-#: loop, which a symmetric PI averages into its width), so their test refits the weights jointly
-#: with the effect.
-JOINT_WITH_PI = ("coil_heating", "supply_pressure", "asymmetric_hysteresis", "creep")
+def is_open(sig: Signals, chain: dict) -> np.ndarray | bool:
+    """Rows where the chain lets flow through (all when it has no dead zone)."""
+    g = flow_gain(sig, chain)
+    return True if g is None else g > 0
 
 
 def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
-    """The baseline PI with its weights refitted under ``chain``: through its dead zone, delay and
-    lag, jointly with the effects of :data:`JOINT_WITH_PI`.
+    """The baseline PI with its weights refitted under ``chain``: on the chain's effective duty
+    with its descending thresholds lifted, through its dead zone, delay and lag, jointly with the
+    columns of the words a PI absorbs (``joint_with_pi``), without the rows a dead zone shuts or
+    a saturation clips.
 
     Coil heating lowers the current the magnetics see along the thermal history;
     a PI fitted through it bends its weights to absorb what it can on average,
-    and a heating column on top of that bent PI only sees what is left. With
-    the heating column linear, the joint fit of the PI's play operator outputs
-    (Eq. 1, 4), its offset and the column is one least-squares problem on the
-    training ``rows``, with the paper's constraint (every loading-curve slope
-    positive): refitted freely, the weights of the wide operators, which rare
-    excursions alone move, extrapolate wildly on held-out levels.
+    and a heating column on top of that bent PI only sees what is left. The
+    exact law refits the PI on the effective duty; the linearized column is
+    fitted jointly with the PI's play operator outputs (Eq. 1, 4) and its
+    offset, one least-squares problem on the training ``rows``, with the
+    paper's constraint (every loading-curve slope positive): refitted freely,
+    the weights of the wide operators, which rare excursions alone move,
+    extrapolate wildly on held-out levels.
     Returns ``base`` itself for a model file (held fixed).
     """
-    words = [w for w in JOINT_WITH_PI if w in chain]
     if not base.refit:
         return base
-    rest = {w: p for w, p in chain.items() if w not in JOINT_WITH_PI}
-    d = build(base, sig, chain)
-    H = d.X[:, [d.names.index(w) for w in words]] if words else np.zeros((len(sig), 0))
-    fr = rows & d.fit_ok & (flow_gain(sig, chain) > 0)  # the shut rows of a dead zone say nothing of the PI
+    if any(VOCABULARY[w].joint_with_pi and not VOCABULARY[w].is_exact(p) for w, p in chain.items()):
+        d = build(base, sig, chain)
+        H = d.X[:, [i for i, w in enumerate(d.names) if w in chain and VOCABULARY[w].joint_with_pi]]
+        fit_ok = d.fit_ok
+    else:  # the exact laws are in the operators: no column to fit jointly
+        H, fit_ok = np.zeros((len(sig), 0)), _clip_rows(base, sig, chain)
+    fr = rows & fit_ok & is_open(sig, chain)  # the shut rows of a dead zone say nothing of the PI
     m = base.model
     ys = m.y_scale
-    Y = base.regressors_at_sensor(sig, rest)
+    Y = base.regressors_at_sensor(sig, chain)
     w, offset, _ = fit_weights(Y[fr], ys.to_unit(sig.flow_lpm[fr]), H[fr] / ys.half_range)
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
-    return Base(True, model, core, m.x_scale, base.lift_w, parent=base.parent or base)
+    return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root)

@@ -1,40 +1,46 @@
-"""One detector per effect word of DESIGN.md, and the greedy selection of effects.
+"""The search: each effect word tested on held-out blocks, and the greedy selection of effects.
 
-A detector tests an effect's physical signature the only way that survives
-the strongly autocorrelated residuals of a simulation: it fits the augmented
-model (baseline + the effect's physical law, :mod:`models.diagnose.effects`)
-and asks whether it predicts *held-out* blocks better. Nonlinear parameters
-(time constants, delay, cracking duty, full-open flow) are searched
-on a grid; for each cross-validation fold the grid point is chosen on that
-fold's training rows only, so the held-out error is honest. An effect is
-named when the pooled held-out error falls by more than its calibrated margin
-(:mod:`models.diagnose.calibrate`, from effect-free recordings) and falls in
-at least ``min_wins`` of the folds, and its parameters are physically
-plausible. Effects are added greedily, strongest first, each on top of those
-already named (forward selection with refit); the margin is the price of an
-extra effect, as in an information criterion, so fewer effects are preferred.
-Every step refits all linear coefficients (baseline gain, offset and loop
-width, and each named effect's) with the new effect in place.
+A test asks whether the augmented model (baseline + the word's law,
+:mod:`models.diagnose.words`) predicts *held-out* blocks better, the only
+test that survives the strongly autocorrelated residuals of a simulation.
+It runs in two stages:
+
+1. *Screen*: the word's linearized columns over the grid of its nonlinear
+   parameters; for each cross-validation fold the grid point is chosen on
+   that fold's training rows only, so the held-out error is honest.
+2. *Refine*: where the word has an exact nonlinear law (the effective duty
+   of a warm coil, the generalized PI's widened descending thresholds), its
+   physical parameters are refined from the screen's estimate by bounded
+   nonlinear least squares on the training rows, the PI refitted inside
+   (variable projection), and the exact law is cross-validated in turn; the
+   law with the lower training error is the word's candidate. Large effects
+   (a coil 30 K warm, a loop twice as wide) are then modelled as well as
+   small ones, where the first-order column saturates.
+
+A word is named when the pooled held-out error falls by more than its
+calibrated margin (:mod:`models.diagnose.calibrate`, from effect-free
+recordings) in a majority of folds, its parameters are physically plausible
+and resolved, and the recording has the rows its law needs (a dead zone
+needs rows where the flow really stops). Words are added greedily, strongest
+first, each on top of those already named; every step refits all linear
+coefficients. Every test and decision is recorded in a trace
+(:mod:`models.diagnose.trace`).
 """
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import least_squares, minimize_scalar
 
-from . import effects as fx
 from .calibrate import Margins
-from .design import (JOINT_WITH_PI, Base, CVResult, Design, build, cross_validate, fit_final, flow_gain,
-                     major_loop_half_width, refit_rows, unbend)
+from .design import Base, CVResult, Design, build, cross_validate, fit_final, solve, unbend
 from .folds import Folds
-from .signals import Signals
+from .signals import Signals, noise_lpm
+from .trace import ALTERNATIVE, BELOW_MARGIN, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
+from .words import DYNAMIC, VOCABULARY, WORDS, Word
 
-#: Effect words of DESIGN.md, in the order the chain applies them does not matter here.
-WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dynamics", "transport_delay",
-         "dead_zone", "saturation", "creep", "sensor_offset")
 #: Most effects named in one recording.
 MAX_EFFECTS = 4
 #: A further effect must gain at least this fraction of what the strongest one did: no effect's
@@ -50,138 +56,24 @@ CHANGED = 0.002
 #: the named one's, the recording cannot separate them and both are reported, each as the other's
 #: alternative.
 AMBIGUOUS = 0.02
-#: The two words of the flow's time response, with their time parameter.
-DYNAMIC = ("valve_dynamics", "transport_delay")
+#: Time parameter of each word of :data:`DYNAMIC`.
 TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
+#: Function evaluations of one exact-law refinement (besides those of its Jacobians).
+REFINE_EVALS = 16
+#: Training rows an exact-law refinement fits on (a regular subsample beyond this).
+REFINE_ROWS = 12000
 
 
-@dataclass(frozen=True)
-class Effect:
-    """What the diagnosis knows of one effect word.
-
-    Attributes
-    ----------
-    word : str
-        DESIGN.md effect word.
-    physics : str
-        One line: the law modelled.
-    units : dict
-        Reported parameter -> unit (DESIGN.md's for the effect parameter).
-    plausible : dict
-        Reported parameter -> (lo, hi) physically plausible range.
-    grid : callable
-        ``grid(sig, base) -> {param: values}`` of the nonlinear parameters (empty: linear only).
-    applicable : callable
-        ``applicable(sig, base) -> None`` or the reason it cannot be identified.
-    """
-
-    word: str
-    physics: str
-    units: dict
-    plausible: dict
-    grid: Callable
-    applicable: Callable = lambda sig, base: None
-
-
-def _always(sig, base):
-    return None
-
-
-def _dead_zone_grid(sig: Signals, base: Base) -> dict:
-    # cracking duties just above the lowest duty and the low duty quantiles (each masks the rows
-    # at or below one of them, so a held level right at the cracking duty is either shut or open,
-    # not both), and evenly over the lower 40 % of the duty span (a recording that rests at one
-    # low level, as a ventilator's expiration does, has all its low quantiles at that level)
-    q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
-    span = np.linspace(q[0], q[0] + 0.4 * np.ptp(sig.duty_pct), 41)
-    c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
-    return {"cracking_pct": c[c <= 50.0]}
-
-
-def _saturation_grid(sig: Signals, base: Base) -> dict:
-    q = np.percentile(sig.flow_lpm, [75, 82, 88, 92, 95, 97, 98.5, 99.3])
-    return {"full_open_lpm": np.unique(np.round(q, 2))}
-
-
-def _heating_grid(sig: Signals, base: Base) -> dict:
-    if sig.coil_temp_c is not None:
-        return {}
-    dur = sig.t_s[-1] - sig.t_s[0]
-    tau = np.geomspace(20.0, 2000.0, 11)  # a solenoid coil warms over minutes
-    # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
-    return {"tau_s": tau[tau <= 2.0 * dur], "start": np.array([0.0, 1.0])}
-
-
-def _no_supply(sig, base):
-    return None if sig.supply_bar is not None else "no varying supply_bar column: the pressure cannot be seen"
-
-
-def _offset_identifiable(sig, base):
-    if base.refit:
-        return ("absorbed by the offset c of Eq. (4) of a baseline fitted on this recording; "
-                "give the simulation's model file (--model) to test it")
-    return None
-
-
-def _dead_zone_applicable(sig, base):
-    return None if len(_dead_zone_grid(sig, base)["cracking_pct"]) else "the duty never goes low enough"
-
-
-EFFECTS = {
-    "asymmetric_hysteresis": Effect(
-        "asymmetric_hysteresis", "every play operator's descending threshold lifted in proportion to the input level "
-        "(generalized PI), to first order, the PI refitted with it",
-        {"extra_width": "relative (1 = twice as wide) at full flow",
-         "lift_pct": "% duty (descending thresholds at the top of the range)"}, {"lift_pct": (0.005, 20.0)},
-        lambda sig, base: {}),
-    "coil_heating": Effect(
-        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T; effective duty = duty / (1 + 0.00393 T), "
-        "to first order",
-        {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
-         "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K"},
-        {"rise55_k": (0.05, 200.0), "tau_s": (10.0, 3600.0), "copper_law_ratio": (0.3, 3.0)}, _heating_grid),
-    "supply_pressure": Effect(
-        "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
-        "to first order, the PI refitted with it",
-        {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
-        {"exponent": (0.3, 2.0)}, lambda sig, base: {}, _no_supply),
-    "valve_dynamics": Effect(
-        "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q, sampled with the command "
-        "held (phase 1) or already seen within its sample (phase 0)",
-        {"tau_s": "s", "phase": "- (share of the previous sample's command)"}, {"tau_s": (0.0, 2.0)},
-        lambda sig, base: {"tau_s": np.geomspace(0.005 / sig.rate_hz, 1.5, 40), "phase": np.linspace(0.0, 1.0, 5)}),
-    "transport_delay": Effect(
-        "transport_delay", "pure delay from command to measured flow",
-        {"delay_s": "s"}, {"delay_s": (0.0, 1.0)},
-        lambda sig, base: {"delay_s": np.geomspace(0.005 / sig.rate_hz, 0.8, 48)}),
-    "dead_zone": Effect(
-        "dead_zone", "no flow while the duty is below the cracking duty",
-        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, _dead_zone_grid, _dead_zone_applicable),
-    "saturation": Effect(
-        "saturation", "flow clipped at the full-open flow",
-        {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, _saturation_grid),
-    "creep": Effect(
-        "creep", "after each reversal the flow drifts on the way it went, to a fraction a of the last "
-        "reversal-to-reversal step, first order with tau",
-        {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
-        {"amplitude": (0.003, 0.5), "tau_s": (0.3, 1000.0)},
-        lambda sig, base: {"tau_s": np.geomspace(0.5, min(400.0, (sig.t_s[-1] - sig.t_s[0]) / 4), 11)}),
-    "sensor_offset": Effect(
-        "sensor_offset", "constant zero offset of the flow sensor",
-        {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}, lambda sig, base: {}, _offset_identifiable),
-}
-
-
-def grid_points(effect: Effect, sig: Signals, base: Base) -> list[dict]:
-    """Every combination of the effect's nonlinear grid ({} once for a linear effect)."""
-    g = effect.grid(sig, base)
+def grid_points(word: Word, sig: Signals, base: Base) -> list[dict]:
+    """Every combination of the word's nonlinear grid ({} once for a linear word)."""
+    g = word.grid(sig, base)
     keys = list(g)
-    return [dict(zip(keys, v)) for v in itertools.product(*(g[k] for k in keys))]
+    return [dict(zip(keys, (float(v) for v in vals))) for vals in itertools.product(*(g[k] for k in keys))]
 
 
 @dataclass
 class Candidate:
-    """The held-out test of one effect on top of a chain.
+    """The held-out test of one word on top of a chain.
 
     Attributes
     ----------
@@ -195,8 +87,14 @@ class Candidate:
         Nonlinear parameters chosen on all training rows.
     test_before, test_after : ndarray
         Held-out squared error per fold.
+    base : Base, optional
+        The PI refitted with the word in place (joint and static words).
     changed : int
-        Folds whose held-out error the effect changes by more than :data:`CHANGED`.
+        Folds whose held-out error the word changes by more than :data:`CHANGED`.
+    train_gain : float
+        Relative fall of the training squared error.
+    law : str
+        ``"exact"`` or ``"linearized"``.
     """
 
     word: str
@@ -207,144 +105,154 @@ class Candidate:
     test_after: np.ndarray
     base: Base | None = None
     changed: int = 0
+    train_gain: float = 0.0
+    law: str = "linearized"
+    refined: bool = False
 
     def majority(self, min_wins: int) -> bool:
         """Lower in ``min_wins`` folds, or in a majority (at least two) of the folds it changes."""
         return self.wins >= min(min_wins, self.changed // 2 + 1) and self.wins >= 2
 
 
-#: Static effects at the end of the range: the baseline is refitted without the rows they explain.
-STATIC = ("dead_zone", "saturation")
+def design(word: str, base: Base, sig: Signals, chain: dict, folds: Folds,
+           rows: np.ndarray | None = None) -> tuple[Design, Base]:
+    """The design of ``chain`` when testing ``word``, and its base (the PI refitted jointly with a
+    word it absorbs on ``rows``, by default the training rows: :func:`models.diagnose.design.unbend`)."""
+    b = unbend(base, sig, chain, folds.train if rows is None else rows) if VOCABULARY[word].joint_with_pi else base
+    return build(b, sig, chain), b
 
 
-def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds) -> Candidate:
-    """Cross-validated test of ``word`` added to ``chain``."""
-    points = grid_points(EFFECTS[word], sig, base)
+def _candidate(word, params, cv: CVResult, before: CVResult, base, law) -> Candidate:
+    after = cv.test
+    gain = 1.0 - after.sum() / before.test.sum()
+    changed = np.abs(after - before.test) > CHANGED * before.test
+    return Candidate(word, float(gain), int(np.sum((after < before.test) & changed)), dict(params), before.test,
+                     after, base, int(changed.sum()), float(1.0 - cv.train.sum() / before.train.sum()), law)
+
+
+def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds,
+                margin: float = 0.0) -> Candidate:
+    """Cross-validated test of ``word`` added to ``chain``: the screen, then the exact law when the
+    screen's training error falls by more than ``margin``."""
+    w = VOCABULARY[word]
+    points = grid_points(w, sig, base)
     results = [cross_validate(design(word, base, sig, {**chain, word: p}, folds)[0], sig.flow_lpm, folds)
                for p in points]
     train = np.array([r.train for r in results])          # (G, K)
     test = np.array([r.test for r in results])
     pick = np.argmin(train, axis=0)                        # per fold, chosen on its training rows
-    after = test[pick, np.arange(folds.k)]
-    best = points[int(np.argmin(train.sum(axis=1)))]
-    new_base = None
-    if word in JOINT_WITH_PI and base.refit:
-        new_base = design(word, base, sig, {**chain, word: best}, folds)[1]
-    if word in STATIC and base.refit:
+    best_i = int(np.argmin(train.sum(axis=1)))
+    best = points[best_i]
+    cv = CVResult(results[best_i].sse.copy(), results[best_i].n)
+    cv.sse[np.diag_indices(folds.k)] = test[pick, np.arange(folds.k)]
+    new_base = design(word, base, sig, {**chain, word: best}, folds)[1] if w.joint_with_pi and base.refit else None
+    if w.static and base.refit:
+        # a static law at a range end bends a PI fitted through it: refitted without the rows it explains
         ch = {**chain, word: best}
-        d = build(base, sig, ch)
-        refit = refit_rows(base, sig, folds.train & d.fit_ok & (flow_gain(sig, ch) > 0))
-        cv = cross_validate(build(refit, sig, ch), sig.flow_lpm, folds)
-        if cv.test.sum() < after.sum():
-            after, new_base = cv.test, refit
-    gain = 1.0 - after.sum() / before.test.sum()
-    changed = np.abs(after - before.test) > CHANGED * before.test
-    return Candidate(word, float(gain), int(np.sum((after < before.test) & changed)), dict(best), before.test, after,
-                     new_base, int(changed.sum()))
+        refit = unbend(base, sig, ch, folds.train)
+        cv_r = cross_validate(build(refit, sig, ch), sig.flow_lpm, folds)
+        if cv_r.test.sum() < cv.test.sum():
+            cv, new_base = cv_r, refit
+    cand = _candidate(word, best, cv, before, new_base, "exact" if w.is_exact(best) else "linearized")
+    if cand.train_gain > margin:
+        exact = _exact(w, chain, cand, before, base, sig, folds)
+        if exact is not None and exact.train_gain >= cand.train_gain:
+            return exact
+    return cand
 
 
-def design(word: str, base: Base, sig: Signals, chain: dict, folds: Folds) -> tuple[Design, Base]:
-    """The design of ``chain`` when testing ``word``, and its base (the PI refitted jointly with an
-    effect it absorbs, :func:`models.diagnose.design.unbend`)."""
-    b = unbend(base, sig, chain, folds.train) if word in JOINT_WITH_PI else base
-    return build(b, sig, chain), b
+def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base, sig: Signals,
+           folds: Folds) -> Candidate | None:
+    """The word's exact law, refined from the screen and cross-validated (``None``: no exact law)."""
+    ch = {**chain, w.word: screen.params}
+    d, b = design(w.word, base, sig, ch, folds)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    coef = _coef(w.word, d, theta)
+    starts = w.exact_starts(screen.params, coef if coef is not None else 0.0, sig, b)
+    if not starts:
+        return None
+    rows = _subsample(folds.train)
+    start = min(starts, key=lambda p: train_sse(design(w.word, base, sig, {**chain, w.word: p}, folds, rows)[0],
+                                                sig.flow_lpm, rows))
+    params = refine(w.word, chain, start, base, sig, folds)
+    d, b = design(w.word, base, sig, {**chain, w.word: params}, folds)
+    cv = cross_validate(d, sig.flow_lpm, folds)
+    c = _candidate(w.word, params, cv, before, b if base.refit else None, "exact")
+    c.refined = True
+    return c
+
+
+def _coef(word: str, d: Design, theta: np.ndarray) -> float | None:
+    """The fitted coefficient of ``word``'s (first) column, or ``None`` when it has none."""
+    return float(theta[d.names.index(word)]) if word in d.names else None
+
+
+def train_sse(d: Design, y: np.ndarray, rows: np.ndarray) -> float:
+    """Squared error on ``rows`` of the least-squares fit on those rows."""
+    e = train_residual(d, y, rows)
+    return float(e @ e)
+
+
+def train_residual(d: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Residual on ``rows`` of the least-squares fit on those rows."""
+    fr = rows & d.fit_ok
+    p = d.X.shape[1]
+    if p:
+        X = d.X[fr]
+        theta = solve(X.T @ X, X.T @ (y - d.F)[fr])
+    else:
+        theta = np.zeros(0)
+    return d.predict(theta)[rows] - y[rows]
+
+
+def _subsample(rows: np.ndarray) -> np.ndarray:
+    """A regular subsample of ``rows`` of about :data:`REFINE_ROWS`: every exact-law evaluation refits
+    the PI, and a smooth law of a few parameters needs no more than some ten thousand rows."""
+    every = max(1, int(rows.sum()) // REFINE_ROWS)
+    return rows & (np.arange(len(rows)) % every == 0)
 
 
 def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds: Folds) -> dict:
-    """Polish the nonlinear parameters of ``word`` on the training rows (log-scale bounded search)."""
-    grid = EFFECTS[word].grid(sig, base)
+    """Refine the nonlinear parameters of ``word`` on the training rows.
+
+    The exact law's parameters (:meth:`Word.bounds`) by bounded nonlinear least squares in log
+    scale, the PI and every linear coefficient refitted at each evaluation; a screened grid
+    parameter by a bounded scalar search between its grid neighbours.
+    """
+    w = VOCABULARY[word]
+    y, rows = sig.flow_lpm, folds.train
     params = dict(params)
-    y = sig.flow_lpm
-    rows = folds.train
+    box = {k: v for k, v in w.bounds(sig, base).items() if k in params}
+    if box:
+        rows = _subsample(rows)
+        keys = list(box)
+        lo = np.log([box[k][0] for k in keys])
+        hi = np.log([box[k][1] for k in keys])
+        u0 = np.clip(np.log([max(params[k], 1e-12) for k in keys]), lo + 1e-9, hi - 1e-9)
+
+        def resid(u):
+            p = {**params, **dict(zip(keys, np.exp(u).tolist()))}
+            return train_residual(design(word, base, sig, {**chain, word: p}, folds, rows)[0], y, rows)
+
+        res = least_squares(resid, u0, bounds=(lo, hi), diff_step=1e-2, max_nfev=REFINE_EVALS, xtol=1e-3,
+                            ftol=1e-6)
+        return {**params, **dict(zip(keys, np.exp(res.x).tolist()))}
+    grid = w.grid(sig, base)
     for key, values in grid.items():
         values = np.asarray(values, dtype=float)
-        if len(values) < 3 or np.any(values <= 0):
+        if len(values) < 3 or np.any(values <= 0) or key not in params:
             continue
         i = int(np.argmin(np.abs(values - params[key])))
         lo, hi = np.log(values[max(i - 1, 0)]), np.log(values[min(i + 1, len(values) - 1)])
 
         def cost(u):
-            d = design(word, base, sig, {**chain, word: {**params, key: float(np.exp(u))}}, folds)[0]
-            return train_sse(d, y, rows)
+            return train_sse(design(word, base, sig, {**chain, word: {**params, key: float(np.exp(u))}}, folds)[0],
+                             y, rows)
 
         res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02, "maxiter": 12})
         if res.fun < cost(np.log(params[key])):
             params[key] = float(np.exp(res.x))
     return params
-
-
-def train_sse(design: Design, y: np.ndarray, rows: np.ndarray) -> float:
-    """Squared error on ``rows`` of the least-squares fit on those rows."""
-    from .design import _solve
-
-    fr = rows & design.fit_ok
-    p = design.X.shape[1]
-    if p:
-        X = design.X[fr]
-        theta = _solve(X.T @ X, X.T @ (y - design.F)[fr])
-    else:
-        theta = np.zeros(0)
-    e = design.predict(theta)[rows] - y[rows]
-    return float(e @ e)
-
-
-def physical_params(word: str, chain: dict, design: Design, theta: np.ndarray, sig: Signals, base: Base) -> dict:
-    """The effect's parameters in the units of DESIGN.md's effect table (see ``Effect.units``)."""
-    p = {k: float(v) for k, v in chain[word].items()}
-    coef = dict(zip(design.names, theta))
-    if word == "asymmetric_hysteresis":
-        # lift of the descending thresholds at the top of the range, in duty and over the major loop's half-width
-        p["lift_pct"] = float(coef[word]) * base.shape_scale.half_range
-        h = major_loop_half_width(base.shape.r, base.lift_w)
-        if h > 1e-3:
-            p["extra_width"] = float(coef[word]) / h
-    elif word == "creep":
-        p["amplitude"] = float(coef[word])
-    elif word == "coil_heating" and sig.coil_temp_c is not None:
-        p["copper_law_ratio"] = float(coef[word])  # 1: the measured temperature explains it by 0.393 %/K
-        p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
-    elif word == "coil_heating":
-        p["rise55_k"] = float(coef[word])
-    elif word == "sensor_offset":
-        p["offset_lpm"] = float(coef[word])
-    elif word == "supply_pressure":
-        p["exponent"] = float(coef[word])
-        lo, hi = np.percentile(sig.supply_bar, [1, 99])
-        p["wander_bar"] = float(hi - lo) / 2.0
-    return p
-
-
-#: Search-range ends where an effect's time constant is not resolved, so its law cannot be told
-#: from a static one: heating faster than the lower end is a static gain error, creep or a lag
-#: slower than the upper end is a persistent offset or a drift.
-UNRESOLVED = {"coil_heating": ("tau_s", "low"), "creep": ("tau_s", "high"),
-              "valve_dynamics": ("tau_s", "high"), "transport_delay": ("delay_s", "high")}
-
-
-def unresolved(word: str, params: dict, sig: Signals, base: Base) -> str | None:
-    """Why the effect's time constant is not resolved (at the end of its search range), or None."""
-    if word not in UNRESOLVED:
-        return None
-    key, side = UNRESOLVED[word]
-    grid = EFFECTS[word].grid(sig, base).get(key)
-    if grid is None or key not in params:
-        return None
-    lo, hi = float(np.min(grid)), float(np.max(grid))
-    v = params[key]
-    if (side == "low" and v <= lo * 1.05) or (side == "high" and v >= hi / 1.05):
-        return f"{key} = {v:.4g} at the {side} end of its search range ({lo:.4g}..{hi:.4g}): not resolved"
-    return None
-
-
-def implausible(word: str, params: dict) -> str | None:
-    """Why the parameters are not physical for the effect, or None."""
-    bad = []
-    for k, (lo, hi) in EFFECTS[word].plausible.items():
-        if k in params:
-            v = params[k]
-            if not lo <= v <= hi:
-                bad.append(f"{k} = {params[k]:.4g} outside {lo:g}..{hi:g} {EFFECTS[word].units[k]}")
-    return "; ".join(bad) or None
 
 
 @dataclass
@@ -358,9 +266,9 @@ class Selection:
     steps : list of Candidate
         The accepted test of each named effect.
     params : dict
-        Word -> parameters in physical units (:func:`physical_params`).
-    rejected : dict
-        Word -> why it was not named (best gain, folds, margin, plausibility).
+        Word -> parameters in physical units.
+    trace : list of Decision
+        Every word's test in every round and what was decided.
     not_identifiable : dict
         Word -> why it cannot be tested on this recording with this baseline.
     alternatives : dict
@@ -374,18 +282,27 @@ class Selection:
     chain: dict = field(default_factory=dict)
     steps: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
-    rejected: dict = field(default_factory=dict)
+    trace: list = field(default_factory=list)
     not_identifiable: dict = field(default_factory=dict)
     alternatives: dict = field(default_factory=dict)
     reference: Base | None = None
 
+    def last(self) -> dict:
+        """Word -> its last decision."""
+        return {d.word: d for d in self.trace}
+
 
 def reference(base: Base, sig: Signals, folds: Folds) -> tuple[Base, CVResult]:
     """What the first tests are held against: the baseline, its PI refitted the way every test
-    refits it (:func:`models.diagnose.design.unbend`, unconstrained on the training rows), and its
+    refits it (:func:`models.diagnose.design.unbend`, on the training rows), and its
     cross-validated errors."""
     cur = unbend(base, sig, {}, folds.train)
     return cur, cross_validate(build(cur, sig, {}), sig.flow_lpm, folds)
+
+
+def _decision(c: Candidate, rnd: int, need: float, margins: Margins, outcome: str, why: str = "") -> Decision:
+    return Decision(c.word, rnd, c.gain, need, c.wins, c.changed, len(c.test_after), margins.min_wins, c.law,
+                    outcome, why)
 
 
 def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=None) -> Selection:
@@ -403,39 +320,25 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
     sel = Selection()
     words = []
     for w in WORDS:
-        reason = EFFECTS[w].applicable(sig, base)
+        reason = VOCABULARY[w].applicable(sig, base)
         if reason:
             sel.not_identifiable[w] = reason
         else:
             words.append(w)
-    y = sig.flow_lpm
     cur, before = reference(base, sig, folds)
     sel.reference = cur
+    noise = noise_lpm(sig.flow_lpm)
+    rnd = 0
     while words and len(sel.chain) < MAX_EFFECTS:
         cands = {}
         for w in words:
             if progress:
                 progress(w)
-            cands[w] = test_effect(w, sel.chain, before, cur, sig, folds)
-        passing = []
-        for c in cands.values():
-            need = margins.gain[c.word]
-            if sel.steps:  # the law of a named effect leaves part of it for other detectors to take up
-                need = max(need, SECONDARY * sel.steps[0].gain)
-            if c.gain > need and c.majority(margins.min_wins):
-                passing.append(c)
-            else:
-                sel.rejected[c.word] = (f"held-out error {-100 * c.gain:+.2f} % (needs below -{100 * need:.2f} %), "
-                                        f"lower in {c.wins}/{len(c.test_after)} folds, {c.changed} changed "
-                                        f"(needs {margins.min_wins}, or a majority of two or more changed)")
-        accepted = None
-        for c in sorted(passing, key=lambda c: -c.gain):
-            found = _accept(c, sel.chain, cur, sig, folds)
-            if isinstance(found, str):
-                sel.rejected[c.word] = f"fits better but is not physical or not resolved: {found}"
-                continue
-            accepted = found
-            break
+            cands[w] = test_effect(w, sel.chain, before, cur, sig, folds, margins.gain[w])
+        passing = _passing(cands, sel, margins, rnd)
+        accepted, refused = _first_acceptable(passing, sel.chain, cur, sig, folds, noise)
+        for c, outcome, why in refused:
+            sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, outcome, why))
         if accepted is None:
             break
         c, sel.chain, phys = accepted
@@ -444,38 +347,89 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         cur = c.base = unbend(c.base or cur, sig, sel.chain, folds.train)
         sel.params[c.word] = phys
         sel.steps.append(c)
-        sel.rejected.pop(c.word, None)
-        done = {c.word}
-        if c.word in DYNAMIC:
-            other = cands.get(DYNAMIC[1 - DYNAMIC.index(c.word)])
-            # within a sample a lag and a delay are one thing: how late the sample is depends on
-            # when in the period the flow was read (a lag whose command moves between samples
-            # answers as an interpolated delay)
-            sub_sample = phys[TIME_PARAM[c.word]] * sig.rate_hz < 1.0
-            if (other is not None and any(o is other for o in passing)
-                    and (c.gain - other.gain < AMBIGUOUS or sub_sample)):
-                alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds)
-                if not isinstance(alt, str):
-                    sel.alternatives[c.word] = alt
-                    sel.rejected.pop(other.word, None)
-                    done.add(other.word)
-        words = [w for w in words if w not in done and w not in sel.rejected or
-                 (w in sel.rejected and not sel.rejected[w].startswith("fits better"))]
-        before = cross_validate(build(cur, sig, sel.chain), y, folds)
+        sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, NAMED))
+        done = {c.word} | _alternative(c, phys, cands, passing, sel, prev, sig, folds, noise, rnd, margins)
+        refused_words = {r[0].word for r in refused}
+        words = [w for w in words if w not in done and w not in refused_words]
+        before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
+        rnd += 1
     return sel
 
 
-def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds):
-    """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or why not."""
-    b = cur if c.word in JOINT_WITH_PI else c.base or cur
-    params = refine(c.word, chain, c.params, b, sig, folds)
-    chain = {**chain, c.word: params}
-    d, b = design(c.word, b, sig, chain, folds)
-    phys = physical_params(c.word, chain, d, fit_final(d, sig.flow_lpm, folds.train), sig, b)
-    why = implausible(c.word, phys) or unresolved(c.word, phys, sig, b)
+def _need(c: Candidate, sel: Selection, margins: Margins) -> float:
+    need = margins.gain[c.word]
+    first = next((s for s in sel.steps if s is not c), None)
+    if first is not None:  # the law of a named effect leaves part of it for other detectors to take up
+        need = max(need, SECONDARY * first.gain)
+    return need
+
+
+def _passing(cands: dict, sel: Selection, margins: Margins, rnd: int) -> list:
+    """Candidates that beat their margin in a fold majority, strongest first (the others traced)."""
+    passing = []
+    for c in cands.values():
+        need = _need(c, sel, margins)
+        if c.gain > need and c.majority(margins.min_wins):
+            passing.append(c)
+        else:
+            sel.trace.append(_decision(c, rnd, need, margins, BELOW_MARGIN))
+    return sorted(passing, key=lambda c: -c.gain)
+
+
+def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float):
+    """The strongest passing candidate whose refined law is physical, resolved and supported:
+    ``((candidate, chain, physical params), refused)`` with ``refused`` the ``(candidate, outcome,
+    why)`` of the stronger ones that were not."""
+    refused = []
+    for c in passing:
+        found = _accept(c, chain, cur, sig, folds, noise)
+        if isinstance(found, tuple) and isinstance(found[0], str):
+            refused.append((c, *found))
+            continue
+        return found, refused
+    return None, refused
+
+
+def _alternative(c: Candidate, phys: dict, cands: dict, passing: list, sel: Selection, prev: Base, sig: Signals,
+                 folds: Folds, noise: float, rnd: int, margins: Margins) -> set:
+    """When the recording cannot tell a lag from a delay, record the other as the named one's
+    alternative; returns the words that need no further test."""
+    if c.word not in DYNAMIC:
+        return set()
+    other = cands.get(DYNAMIC[1 - DYNAMIC.index(c.word)])
+    # within a sample a lag and a delay are one thing: how late the sample is depends on
+    # when in the period the flow was read (a lag whose command moves between samples
+    # answers as an interpolated delay)
+    sub_sample = phys[TIME_PARAM[c.word]] * sig.rate_hz < 1.0
+    if other is None or not any(o is other for o in passing) or not (c.gain - other.gain < AMBIGUOUS or sub_sample):
+        return set()
+    alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds, noise)
+    if isinstance(alt[0], str):
+        return set()
+    sel.alternatives[c.word] = alt
+    sel.trace.append(_decision(other, rnd, _need(other, sel, margins), margins, ALTERNATIVE))
+    return {other.word}
+
+
+def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float) -> tuple:
+    """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or
+    ``(outcome, why)`` when they are not physical, not resolved, or the recording does not show the law."""
+    w = VOCABULARY[c.word]
+    b = cur if w.joint_with_pi else c.base or cur
+    params = c.params if c.refined else refine(c.word, chain, c.params, b, sig, folds)
+    full = {**chain, c.word: params}
+    d, b = design(c.word, b, sig, full, folds)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    phys = w.physical(params, _coef(c.word, d, theta), sig, b)
+    why = w.implausible(phys) or w.not_resolved(params, sig, b)
     if why:
-        return why
+        return NOT_PHYSICAL, why
+    d0 = build(cur, sig, chain)
+    before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
+    why = w.support(sig, params, before, noise)
+    if why:
+        return UNSUPPORTED, why
     c.params = params
-    if c.word in JOINT_WITH_PI:
+    if w.joint_with_pi:
         c.base = b
-    return c, chain, phys
+    return c, full, phys

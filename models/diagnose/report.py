@@ -15,6 +15,7 @@ from ..model import write_json_atomic
 from ..recording import write_recording
 from . import Diagnosis
 from .residuals import branch
+from .words import VOCABULARY
 
 #: Most points drawn per time series (plots decimate beyond this).
 PLOT_POINTS = 20000
@@ -109,7 +110,7 @@ def diagnose_plot(diag: Diagnosis) -> dict:
         k = np.argmax(np.abs(delta))
         span = max(2.0, (diag.t_s[-1] - diag.t_s[0]) / 20)
         w = (diag.t_s > diag.t_s[k] - span) & (diag.t_s < diag.t_s[k] + span)
-        if f.effect in ("coil_heating", "supply_pressure", "creep", "asymmetric_hysteresis"):
+        if VOCABULARY[f.effect].whole_plot:
             w[:] = True
         ws = np.flatnonzero(w)[_every(int(w.sum()))]
         ax[0].plot(diag.t_s[ws], resid[ws], lw=0.5, label="residual before")
@@ -120,8 +121,11 @@ def diagnose_plot(diag: Diagnosis) -> dict:
         h = diag.holdout
         hs = np.flatnonzero(h)[_every(int(h.sum()))]
         ax[1].plot(delta[hs], resid[hs], ".", ms=1)
-        lim = [float(np.min(delta)), float(np.max(delta))]
-        ax[1].plot(lim, lim, "k--", lw=0.8)
+        lim = np.array([float(np.min(delta)), float(np.max(delta))])
+        ax[1].plot(lim, lim, "k--", lw=0.8, label="slope 1: the correction is the residual")
+        ax[1].plot(lim, f.slope * lim, "C3-", lw=1.0,
+                   label=f"holdout fit: slope {f.slope:.2f}, correlation {f.correlation:.2f}")
+        ax[1].legend(fontsize=7)
         ax[1].set_xlabel("correction (L/min)")
         ax[1].set_ylabel("residual before, holdout rows (L/min)")
         ptxt = ", ".join(f"{k_} = {v:.3g}" for k_, v in f.params.items())

@@ -12,11 +12,11 @@ reversals the valve never saw).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..recording import Recording
+from ..recording import InputError, Recording
 
 #: Working rate of the diagnosis (Hz); recordings slower than this are used as they are.
 WORK_RATE_HZ = 250.0
@@ -40,6 +40,8 @@ class Signals:
         Coil temperature (deg C), when recorded.
     rate_hz : float
         Sample rate (Hz).
+    cache : dict
+        Derived signals kept while they are asked for again (an effective duty).
     """
 
     t_s: np.ndarray
@@ -48,6 +50,7 @@ class Signals:
     supply_bar: np.ndarray | None
     coil_temp_c: np.ndarray | None
     rate_hz: float
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -82,3 +85,34 @@ def work_signals(rec: Recording, rate_hz: float = WORK_RATE_HZ) -> Signals:
 
     return Signals(raw.t_s[::factor], average(raw.duty_pct), average(raw.flow_lpm),
                    average(raw.supply_bar), average(raw.coil_temp_c), raw.rate_hz / factor)
+
+
+def noise_lpm(flow_lpm: np.ndarray) -> float:
+    """Robust standard deviation of white sensor noise (L/min) from second differences.
+
+    A smooth flow has second differences far below the noise's, whose standard deviation is
+    ``sqrt(6)`` times the noise's; the median absolute value ignores steps.
+    """
+    d2 = np.diff(np.asarray(flow_lpm, dtype=np.float64), 2)
+    return float(np.median(np.abs(d2)) / 0.6745 / np.sqrt(6.0)) if len(d2) else 0.0
+
+
+def running_rows(rec: Recording) -> Recording:
+    """A closed-loop run recording (a ``state`` column, ``valvectl run --record``) cut to its longest
+    stretch of ``running`` rows; any other recording as it is.
+
+    In the safe or fault state the controller commands the safe duty and the flow it
+    measures is not the loop's; the longest stretch keeps the hysteresis memory continuous.
+    """
+    state = rec.text_columns.get("state")
+    if state is None:
+        return rec
+    run = np.array([s.strip() == "running" for s in state])
+    if run.all():
+        return rec
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
+    if len(edges) == 0:
+        raise InputError(f"{rec.path}: column 'state': no row is 'running'")
+    starts, stops = edges[::2], edges[1::2]
+    k = int(np.argmax(stops - starts))
+    return rec.slice(int(starts[k]), int(stops[k]))

@@ -1,0 +1,493 @@
+"""The vocabulary of the diagnosis: one object per effect word of DESIGN.md.
+
+Each object carries everything the diagnosis knows of its word: the law (in
+:mod:`.effects`), the linearized columns it screens with and where in the
+chain they enter, the grid of its nonlinear parameters, its exact nonlinear
+law and the bounds its physical parameters are refined within, the
+parameters it reports with their units, their plausible ranges, and whether
+the excitation can show it at all. :mod:`.design` builds the augmented model,
+:mod:`.detectors` searches and confirms, and :mod:`.report` draws, by
+iterating over :data:`VOCABULARY`: adding a word is one new object here.
+
+The augmented model chains the words around the hysteresis core::
+
+    duty -> coil heating (effective duty) -> hysteresis (asymmetric branch)
+         -> dead zone -> supply pressure gain -> transport delay, lag
+         -> creep -> saturation -> + sensor offset
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import effects as fx
+from .residuals import branch
+from .signals import Signals
+
+
+@dataclass(frozen=True)
+class Columns:
+    """What a word's columns are built from (all on one sample grid, L/min).
+
+    Attributes
+    ----------
+    sig : Signals
+        The signals.
+    flow_lpm : ndarray
+        The baseline's prediction at the valve (before dead zone, dynamics and sensor).
+    lift_lpm : ndarray
+        Descending-threshold lift column of the baseline (:func:`effects.descending_lift`).
+    slope_lpm : ndarray
+        ``x dq/dx`` of the baseline along the input history.
+    at_sensor_lpm : ndarray
+        ``flow_lpm`` through the dead zone, delay and lag of the chain (for sensor-side columns).
+    """
+
+    sig: Signals
+    flow_lpm: np.ndarray
+    lift_lpm: np.ndarray
+    slope_lpm: np.ndarray
+    at_sensor_lpm: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Word:
+    """One effect word: its law, columns, grid, refinement, parameters, plausibility, visibility.
+
+    Attributes
+    ----------
+    word : str
+        The DESIGN.md effect word.
+    physics : str
+        One line: the law modelled.
+    units : dict
+        Reported parameter -> unit.
+    plausible : dict
+        Reported parameter -> (lo, hi) physically plausible range.
+    joint_with_pi : bool
+        A PI fitted with the effect present bends its weights to absorb it, so the word's test
+        refits the weights jointly with it (:func:`models.diagnose.design.unbend`).
+    static : bool
+        A static nonlinearity at a range end: the baseline is refitted without the rows it explains.
+    unresolved : tuple or None
+        ``(parameter, "low" | "high")``: the end of its search range where the law cannot be told
+        from a static one.
+    whole_plot : bool
+        The finding's plot shows the whole recording (slow effects) rather than around its peak.
+    probe : dict
+        A plausible size of the effect (its nonlinear parameters) used to say whether the
+        excitation can show it at all; empty: not probed.
+    input_side : str or None
+        What the exact law changes at the hysteresis core's input: ``"duty"`` (the effective
+        duty, :meth:`effective_duty`) or ``"thresholds"`` (:meth:`threshold_lift`).
+    """
+
+    word: str
+    physics: str
+    units: dict
+    plausible: dict
+    joint_with_pi: bool = False
+    static: bool = False
+    unresolved: tuple | None = None
+    whole_plot: bool = False
+    probe: dict = field(default_factory=dict)
+    input_side: str | None = None
+
+    # -- search --
+    def grid(self, sig: Signals, base) -> dict:
+        """``{parameter: values}`` of the nonlinear parameters screened (empty: linear only)."""
+        return {}
+
+    def applicable(self, sig: Signals, base) -> str | None:
+        """``None``, or why the word cannot be tested on this recording with this baseline."""
+        return None
+
+    def exact_starts(self, params: dict, coef: float, sig: Signals, base) -> list:
+        """Starts of the exact law's refinement from a screen (its grid point and column
+        coefficient); empty when the linearized law is the law."""
+        return []
+
+    def bounds(self, sig: Signals, base) -> dict:
+        """``{parameter: (lo, hi)}`` of the exact law's parameters refined by least squares (log scale)."""
+        return {}
+
+    def is_exact(self, params: dict) -> bool:
+        """Whether ``params`` select the exact nonlinear law (else the linearized columns)."""
+        return False
+
+    # -- the law in the chain --
+    def effective_duty(self, sig: Signals, params: dict) -> np.ndarray | None:
+        """The duty the magnetics see under this word (input-side words), or ``None``."""
+        return None
+
+    def threshold_lift(self, params: dict) -> float:
+        """Relative lift of the descending thresholds at the top of the range (exact asymmetry)."""
+        return 0.0
+
+    def valve_columns(self, ctx: Columns, params: dict) -> list:
+        """Linear columns at the valve, before the dead zone and the dynamics."""
+        return []
+
+    def flow_gain(self, sig: Signals, params: dict) -> np.ndarray | None:
+        """Pointwise factor on the whole flow at the valve, or ``None``."""
+        return None
+
+    def dynamics(self, v: np.ndarray, rate_hz: float, params: dict) -> np.ndarray:
+        """The flow (or every column) through the word's time response."""
+        return v
+
+    def sensor_columns(self, ctx: Columns, params: dict) -> list:
+        """Linear columns at the sensor, after the dynamics."""
+        return []
+
+    def clip_lpm(self, params: dict) -> float | None:
+        """Full-open flow the prediction is clipped to, or ``None``."""
+        return None
+
+    # -- report and checks --
+    def physical(self, params: dict, coef: float | None, sig: Signals, base) -> dict:
+        """The parameters in the units of :attr:`units` (``coef``: the column's fitted coefficient)."""
+        return {k: float(v) for k, v in params.items()}
+
+    def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float) -> str | None:
+        """``None``, or why the recording lacks the rows that would show this law (range-end laws)."""
+        return None
+
+    def implausible(self, phys: dict) -> str | None:
+        """Why the reported parameters are not physical, or ``None``."""
+        bad = [f"{k} = {phys[k]:.4g} outside {lo:g}..{hi:g} {self.units[k]}"
+               for k, (lo, hi) in self.plausible.items() if k in phys and not lo <= phys[k] <= hi]
+        return "; ".join(bad) or None
+
+    def not_resolved(self, params: dict, sig: Signals, base) -> str | None:
+        """Why the time constant is not resolved (at the end of its search range), or ``None``."""
+        if self.unresolved is None:
+            return None
+        key, side = self.unresolved
+        grid = self.grid(sig, base).get(key)
+        if grid is None or key not in params:
+            return None
+        lo, hi = float(np.min(grid)), float(np.max(grid))
+        v = params[key]
+        if (side == "low" and v <= lo * 1.05) or (side == "high" and v >= hi / 1.05):
+            return f"{key} = {v:.4g} at the {side} end of its search range ({lo:.4g}..{hi:.4g}): not resolved"
+        return None
+
+
+def _span(sig: Signals) -> float:
+    return float(sig.t_s[-1] - sig.t_s[0])
+
+
+@dataclass(frozen=True)
+class AsymmetricHysteresis(Word):
+    """Descending thresholds lifted with the input level (generalized PI)."""
+
+    def exact_starts(self, params, coef, sig, base):
+        from .design import major_loop_half_width
+
+        if not base.refit:
+            return []
+        h = major_loop_half_width(base.shape.r, base.lift_w)
+        first = float(np.clip(coef / h if h > 1e-3 else 0.1, 0.01, 20.0))
+        return [{"extra_width": a} for a in sorted({first, 0.1, 0.3, 1.0, 3.0})]
+
+    def bounds(self, sig, base):
+        return {"extra_width": (0.005, 40.0)}
+
+    def is_exact(self, params):
+        return "extra_width" in params
+
+    def threshold_lift(self, params):
+        return float(params.get("extra_width", 0.0))
+
+    def valve_columns(self, ctx, params):
+        return [] if self.is_exact(params) else [ctx.lift_lpm]
+
+    def physical(self, params, coef, sig, base):
+        from .design import major_loop_half_width
+
+        if self.is_exact(params):
+            # every operator's descending threshold r (1 + a s): a is the relative extra width at the top
+            return {"extra_width": float(params["extra_width"])}
+        p = {"lift_pct": float(coef) * base.shape_scale.half_range}
+        h = major_loop_half_width(base.shape.r, base.lift_w)
+        if h > 1e-3:
+            p["extra_width"] = float(coef) / h
+        return p
+
+
+@dataclass(frozen=True)
+class CoilHeating(Word):
+    """Coil resistance +0.393 %/K with a thermal state: effective duty = duty / (1 + alpha T)."""
+
+    def grid(self, sig, base):
+        if sig.coil_temp_c is not None:
+            return {"copper_law_ratio": np.array([1.0])}
+        tau = np.geomspace(20.0, 2000.0, 11)  # a solenoid coil warms over minutes
+        # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
+        return {"tau_s": tau[tau <= 2.0 * _span(sig)], "start": np.array([0.0, 1.0])}
+
+    def exact_starts(self, params, coef, sig, base):
+        if self.is_exact(params):
+            return []
+        # the first-order column saturates on a large rise and biases the screen's time constant:
+        # a coarse grid of the exact law's rise and time constant around it
+        lo, hi = self.bounds(sig, base)["tau_s"]
+        taus = np.clip(params["tau_s"] * np.array([0.3, 0.6, 1.0, 2.0]), lo, hi)
+        rises = np.unique(np.concatenate([[np.clip(coef, 1.0, 150.0)], [3.0, 10.0, 25.0, 60.0]]))
+        return [{**params, "rise55_k": float(r), "tau_s": float(t)} for r in rises for t in np.unique(taus)]
+
+    def bounds(self, sig, base):
+        if sig.coil_temp_c is not None:
+            return {"copper_law_ratio": (0.2, 5.0)}
+        return {"rise55_k": (0.2, 250.0), "tau_s": (10.0, 4.0 * _span(sig))}
+
+    def rise_k(self, sig: Signals, params: dict) -> np.ndarray:
+        """Coil temperature rise since the first sample (K) times the copper-law ratio: measured or modelled."""
+        if sig.coil_temp_c is not None:
+            return params.get("copper_law_ratio", 1.0) * (sig.coil_temp_c - sig.coil_temp_c[0])
+        x = sig.duty_pct
+        steady0 = (x[0] / fx.HEATING_REF_DUTY_PCT) ** 2
+        rise = fx.coil_temperature_rise(x, sig.rate_hz, params["tau_s"], params.get("rise55_k", 1.0),
+                                        params.get("start", 1.0) * steady0 * params.get("rise55_k", 1.0))
+        return rise
+
+    def is_exact(self, params):
+        return "rise55_k" in params or "copper_law_ratio" in params
+
+    def effective_duty(self, sig, params):
+        if not self.is_exact(params):
+            return None
+        return fx.effective_duty(sig.duty_pct, self.rise_k(sig, params))
+
+    def valve_columns(self, ctx, params):
+        if self.is_exact(params):
+            return []
+        # to first order in the resistance change: q(x (1 - a T)) ~ q(x) - a T x dq/dx, per kelvin of rise55
+        return [-fx.ALPHA_CU_PER_K * self.rise_k(ctx.sig, params) * ctx.slope_lpm]
+
+    def physical(self, params, coef, sig, base):
+        p = {k: float(v) for k, v in params.items()}
+        if sig.coil_temp_c is not None:
+            p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
+            p.update(thermal_fit(sig))
+        elif "rise55_k" not in p:
+            p["rise55_k"] = float(coef)
+        return p
+
+    def support(self, sig, params, before_lpm, noise_lpm):
+        if sig.coil_temp_c is None:
+            return None
+        r = params.get("copper_law_ratio", 1.0)
+        if not 0.3 <= r <= 3.0:
+            return f"the measured coil temperature explains it only at {r:.3g} x copper's 0.393 %/K"
+        return None
+
+
+def thermal_fit(sig: Signals) -> dict:
+    """Steady rise at 55 % duty and time constant of a first-order thermal model fitted to the
+    measured coil temperature (``tau dT/dt = rise55 (duty/55 %)^2 + T_amb - T``)."""
+    from scipy.optimize import least_squares
+
+    T = sig.coil_temp_c
+    x = sig.duty_pct
+    step = max(1, len(T) // 4000)
+    Ts, xs = T[::step], x[::step]
+    rate = sig.rate_hz / step
+    dur = _span(sig)
+
+    def model(u):
+        rise55, tau, amb = np.exp(u[0]), np.exp(u[1]), u[2]
+        drive = rise55 * (xs / fx.HEATING_REF_DUTY_PCT) ** 2
+        return amb + fx.first_order_lag(drive, rate, tau, Ts[0] - amb)
+
+    u0 = np.array([np.log(max(np.ptp(T), 0.5)), np.log(max(dur / 4, 10.0)), float(np.min(T))])
+    res = least_squares(lambda u: model(u) - Ts, u0, bounds=([np.log(0.01), np.log(1.0), -50], [np.log(500), np.log(1e5), 200]),
+                        max_nfev=60)
+    return {"rise55_k": float(np.exp(res.x[0])), "tau_s": float(np.exp(res.x[1])), "ambient_c": float(res.x[2])}
+
+
+@dataclass(frozen=True)
+class SupplyPressure(Word):
+    """Choked flow proportional to the upstream absolute pressure, from the supply_bar column."""
+
+    def applicable(self, sig, base):
+        return None if sig.supply_bar is not None else "no varying supply_bar column: the pressure cannot be seen"
+
+    def valve_columns(self, ctx, params):
+        # q ((p + p_atm) / (p_mean + p_atm))**n ~ q (1 + n ln(...)): the supply wanders by a few per cent
+        # of the absolute pressure, so the exponent n enters linearly
+        sig = ctx.sig
+        gain = fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), 1.0)
+        return [np.clip(ctx.flow_lpm, 0.0, None) * np.log(gain)]
+
+    def physical(self, params, coef, sig, base):
+        lo, hi = np.percentile(sig.supply_bar, [1, 99])
+        return {"exponent": float(coef), "wander_bar": float(hi - lo) / 2.0}
+
+
+@dataclass(frozen=True)
+class ValveDynamics(Word):
+    """First-order lag of the flow."""
+
+    def grid(self, sig, base):
+        return {"tau_s": np.geomspace(0.005 / sig.rate_hz, 1.5, 24), "phase": np.array([0.0, 0.5, 1.0])}
+
+    def dynamics(self, v, rate_hz, params):
+        return fx.first_order_lag(v, rate_hz, params["tau_s"], phase=params.get("phase", 1.0))
+
+
+@dataclass(frozen=True)
+class TransportDelay(Word):
+    """Pure delay from command to measured flow."""
+
+    def grid(self, sig, base):
+        return {"delay_s": np.geomspace(0.005 / sig.rate_hz, 0.8, 28)}
+
+    def dynamics(self, v, rate_hz, params):
+        return fx.delayed(v, rate_hz, params["delay_s"])
+
+
+@dataclass(frozen=True)
+class DeadZone(Word):
+    """No flow while the duty is below the cracking duty."""
+
+    def grid(self, sig, base):
+        # cracking duties just above the lowest duty and the low duty quantiles (each masks the rows
+        # at or below one of them, so a held level right at the cracking duty is either shut or open,
+        # not both), and evenly over the lower 40 % of the duty span (a recording that rests at one
+        # low level, as a ventilator's expiration does, has all its low quantiles at that level)
+        q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
+        span = np.linspace(q[0], q[0] + 0.4 * np.ptp(sig.duty_pct), 41)
+        c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
+        return {"cracking_pct": c[c <= 50.0]}
+
+    def applicable(self, sig, base):
+        return None if len(self.grid(sig, base)["cracking_pct"]) else "the duty never goes low enough"
+
+    def flow_gain(self, sig, params):
+        return fx.open_mask(sig.duty_pct, params["cracking_pct"])
+
+    def support(self, sig, params, before_lpm, noise_lpm):
+        shut = sig.duty_pct <= params["cracking_pct"]
+        if shut.sum() < max(10, 0.002 * len(shut)):
+            return f"only {int(shut.sum())} rows below the cracking duty"
+        # where the law says the valve is shut, the flow must really stop: measured flow at zero
+        # within the noise, while the model before it predicted flow there
+        q = np.median(np.abs(sig.flow_lpm[shut]))
+        pred = np.median(np.abs(before_lpm[shut]))
+        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
+        if q > lim:
+            return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} %: median "
+                    f"{q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
+        if pred < q + noise_lpm:
+            return "the model before it already predicts no flow there"
+        return None
+
+
+@dataclass(frozen=True)
+class Saturation(Word):
+    """Flow clipped at the full-open flow."""
+
+    def grid(self, sig, base):
+        q = np.percentile(sig.flow_lpm, [75, 82, 88, 92, 95, 97, 98.5, 99.3])
+        return {"full_open_lpm": np.unique(np.round(q, 2))}
+
+    def clip_lpm(self, params):
+        return params["full_open_lpm"]
+
+    def support(self, sig, params, before_lpm, noise_lpm):
+        top = before_lpm > params["full_open_lpm"]
+        if top.sum() < max(10, 0.002 * len(top)):
+            return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
+        # where the law clips, the measured flow must flatten at the full-open flow
+        q = sig.flow_lpm[top]
+        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
+        dev = float(np.median(np.abs(q - params["full_open_lpm"])))
+        if dev > lim:
+            return (f"the flow does not flatten at {params['full_open_lpm']:.4g} L/min where the model exceeds it "
+                    f"(median distance {dev:.3g} L/min, within {lim:.3g} needed)")
+        return None
+
+
+@dataclass(frozen=True)
+class Creep(Word):
+    """Slow drift after each reversal towards a fraction of the last reversal step."""
+
+    def grid(self, sig, base):
+        return {"tau_s": np.geomspace(0.5, min(400.0, _span(sig) / 4), 9)}
+
+    def sensor_columns(self, ctx, params):
+        return [fx.creep(ctx.at_sensor_lpm, branch(ctx.sig.duty_pct), ctx.sig.rate_hz, params["tau_s"])]
+
+    def physical(self, params, coef, sig, base):
+        return {"tau_s": float(params["tau_s"]), "amplitude": float(coef)}
+
+
+@dataclass(frozen=True)
+class SensorOffset(Word):
+    """Constant zero offset of the flow sensor."""
+
+    def applicable(self, sig, base):
+        if base.refit:
+            return ("absorbed by the offset c of Eq. (4) of a baseline fitted on this recording; "
+                    "give the simulation's model file (--model) to test it")
+        return None
+
+    def sensor_columns(self, ctx, params):
+        return [np.ones(len(ctx.sig))]
+
+    def physical(self, params, coef, sig, base):
+        return {"offset_lpm": float(coef)}
+
+
+#: The effect words, in the order the augmented model chains them.
+VOCABULARY: dict[str, Word] = {w.word: w for w in (
+    AsymmetricHysteresis(
+        "asymmetric_hysteresis", "every play operator's descending threshold r widened to r (1 + a s) with the "
+        "input level s (generalized PI), the PI refitted with it",
+        {"extra_width": "relative (1 = twice as wide) at full flow",
+         "lift_pct": "% duty (descending thresholds at the top of the range, first order)"},
+        {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds"),
+    CoilHeating(
+        "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T, or the measured coil_temp_c; effective duty = "
+        "duty / (1 + 0.00393 T), the PI refitted on it",
+        {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
+         "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K",
+         "ambient_c": "deg C"},
+        {"rise55_k": (0.05, 250.0), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
+        joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty"),
+    SupplyPressure(
+        "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
+        "to first order, the PI refitted with it",
+        {"exponent": "- (1 = choked flow)", "wander_bar": "bar (half the range of supply_bar)"},
+        {"exponent": (0.3, 2.0)}, joint_with_pi=True, whole_plot=True),
+    ValveDynamics(
+        "valve_dynamics", "first-order lag of the flow: tau dq/dt = q_static - q, sampled with the command "
+        "held (phase 1) or already seen within its sample (phase 0)",
+        {"tau_s": "s", "phase": "- (share of the previous sample's command)"}, {"tau_s": (0.0, 2.0)},
+        unresolved=("tau_s", "high"), probe={"tau_s": 0.02, "phase": 1.0}),
+    TransportDelay(
+        "transport_delay", "pure delay from command to measured flow",
+        {"delay_s": "s"}, {"delay_s": (0.0, 1.0)}, unresolved=("delay_s", "high"), probe={"delay_s": 0.01}),
+    DeadZone(
+        "dead_zone", "no flow while the duty is below the cracking duty",
+        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, static=True),
+    Saturation(
+        "saturation", "flow clipped at the full-open flow",
+        {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, static=True),
+    Creep(
+        "creep", "after each reversal the flow drifts on the way it went, to a fraction a of the last "
+        "reversal-to-reversal step, first order with tau",
+        {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
+        {"amplitude": (0.003, 0.5), "tau_s": (0.3, 1000.0)}, joint_with_pi=True, unresolved=("tau_s", "high"),
+        whole_plot=True),
+    SensorOffset(
+        "sensor_offset", "constant zero offset of the flow sensor",
+        {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}),
+)}
+#: The effect words of DESIGN.md.
+WORDS = tuple(VOCABULARY)
+#: The two words of the flow's time response, which a smooth excitation cannot tell apart.
+DYNAMIC = ("valve_dynamics", "transport_delay")
