@@ -34,6 +34,7 @@ from scipy.signal import lfilter
 
 from models.pi import regressors, thresholds
 from models.preprocess import Scaling
+from models.diagnose.words import WORDS
 from models.recording import Recording
 
 RATE_HZ = 50.0
@@ -42,8 +43,6 @@ LO_PCT, HI_PCT = 38.0, 72.0
 FULL_FLOW_LPM = 180.0
 COIL_TAU_S = 150.0
 CREEP_TAU_S = 12.0
-WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dynamics", "transport_delay",
-         "dead_zone", "saturation", "creep", "sensor_offset")
 EXCITATIONS = ("staircase", "triangles", "chirp", "breaths")
 
 # -- the valve: 20 play operators, uniform thresholds, positive weights (a smooth loading curve) --

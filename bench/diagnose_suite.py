@@ -27,6 +27,7 @@ import numpy as np
 from models.pi import regressors, thresholds
 from models.preprocess import Scaling
 from models.recording import Recording
+from models.diagnose.words import WORDS
 from plant_sim import protocols as P
 from plant_sim.effects import EFFECTS as PLANT_EFFECTS
 from plant_sim.plant import Plant, load_plant
@@ -45,8 +46,10 @@ HI_PCT = 72.0
 #: Lowest duty of dead-zone cases (%): below the cracking duty sought, above the forward model's own closing.
 DEAD_ZONE_LO_PCT = 36.0
 
-WORDS = ("asymmetric_hysteresis", "coil_heating", "supply_pressure", "valve_dynamics", "transport_delay",
-         "dead_zone", "saturation", "creep", "sensor_offset")
+#: Period (s) and inspiratory time (s) of the open-loop breaths excitation.
+BREATH_PERIOD_S, BREATH_INSP_S = 3.0, 1.0
+#: Rate (Hz) of the closed-loop runs (controller and plant).
+LOOP_RATE_HZ = 200.0
 
 
 def excitation(name: str, seed: int, lo_pct: float = 40.0, rate_hz: float = RATE_HZ,
@@ -62,10 +65,56 @@ def excitation(name: str, seed: int, lo_pct: float = 40.0, rate_hz: float = RATE
                        periods_s=(40.0, 12.0, 4.0, 1.5))
     if name == "paper":
         return P.paper_identification(rate_hz, duration_s, seed, lo_pct=lo_pct, hi_pct=HI_PCT, max_rate_pct_s=2.0)
+    if name == "steps":
+        rng = np.random.default_rng(seed)
+        levels = tuple(rng.uniform(lo_pct, HI_PCT, 24))
+        return P.steps(rate_hz, duration_s, seed, levels_pct=levels, hold_s=3.0)
+    if name == "breaths":
+        # a ventilator's inspiratory valve: rests near closed, opens to a level per breath in 0.2 s
+        t = np.arange(int(round(duration_s * rate_hz))) / rate_hz
+        k = (t // BREATH_PERIOD_S).astype(int)
+        peak = np.random.default_rng(seed).uniform(lo_pct + 0.5 * (HI_PCT - lo_pct), HI_PCT, k[-1] + 1)[k]
+        phase = t % BREATH_PERIOD_S
+        rise = np.clip(phase / 0.2, 0.0, 1.0)
+        return np.where(phase < BREATH_INSP_S, lo_pct + (peak - lo_pct) * rise, lo_pct)
+    if name == "closed_loop":
+        return closed_loop_run((), seed, lo_pct, 0.0)["duty_pct"]
     raise ValueError(name)
 
 
+#: Excitations of the concealed suite.
 EXCITATIONS = ("random_holds", "ramps", "sines", "paper")
+#: Excitations of the magnitude x excitation matrix.
+MATRIX_EXCITATIONS = ("paper", "steps", "ramps", "random_holds", "breaths", "closed_loop")
+#: Magnitudes of the matrix: the unabsorbed part of each effect, in multiples of the noise.
+MATRIX_SIZES = (1.0, 5.0, 30.0)
+
+
+@lru_cache(maxsize=8)
+def closed_loop_run(effects: tuple, seed: int, lo_pct: float, noise_lpm: float) -> dict:
+    """A closed-loop run (ff+kf, config/run.toml's breath profile, simulated clock at
+    :data:`LOOP_RATE_HZ`) of plant_sim with ``effects``: the columns of ``valvectl run --record``.
+
+    The expiratory reference is the flow at ``lo_pct`` (the valve is held open a little, as a
+    ventilator's bias flow), so that the duty stays where the forward model is identified.
+    """
+    from controller.config import controller_params, load_run_config
+    from controller.loop import Loop, LoopSettings, ProfileReference, SimClock
+    from controller.transport.sim import SimTransport
+    from models.model import load_model
+
+    cfg = load_run_config(ROOT / "config" / "run.toml")
+    model = load_model(MODEL_JSON)
+    base_lpm = float(model.predict(np.array([lo_pct + 4.0]))[0][0])
+    profile = P.BreathProfile(**{**cfg["profile"], "base_lpm": base_lpm, "peak_lpm": 110.0})
+    plant = Plant(load_plant(PLANT_TOML, effects=dict(effects), noise_lpm=noise_lpm, coil_tau_s=COIL_TAU_S),
+                  LOOP_RATE_HZ, seed=seed)
+    loop = Loop(controller_params(cfg, "ff+kf", model), SimTransport(plant), ProfileReference(profile.value),
+                LoopSettings(rate_hz=LOOP_RATE_HZ), clock=SimClock())
+    cols = loop.run(DURATION_S).columns
+    keep = {k: np.asarray(cols[k], dtype=np.float64) for k in ("t_s", "ref_lpm", "flow_lpm", "duty_pct")}
+    keep["state"] = np.asarray(cols["state"])
+    return keep
 
 
 @dataclass(frozen=True)
@@ -94,12 +143,18 @@ class Case:
 
 def _run(effects: dict, duty: np.ndarray, seed: int, noise: float) -> dict:
     params = load_plant(PLANT_TOML, effects=effects, noise_lpm=noise, coil_tau_s=COIL_TAU_S)
-    return Plant(params, RATE_HZ, seed=seed).simulate(duty)
+    rate = RATE_HZ if len(duty) == int(round(DURATION_S * RATE_HZ)) else LOOP_RATE_HZ
+    return Plant(params, rate, seed=seed).simulate(duty)
 
 
 @lru_cache(maxsize=256)
 def _true_flow(effects: tuple, exc: str, seed: int, lo: float) -> np.ndarray:
-    return _run(dict(effects), excitation(exc, seed, lo), seed, 0.0)["true_flow_lpm"]
+    return _run(dict(effects), _duty(exc, seed, lo), seed, 0.0)["true_flow_lpm"]
+
+
+@lru_cache(maxsize=16)
+def _duty(exc: str, seed: int, lo: float) -> np.ndarray:
+    return excitation(exc, seed, lo, rate_hz=LOOP_RATE_HZ if exc == "closed_loop" else RATE_HZ)
 
 
 #: Switching supply_pressure on also switches on the static droop with flow (a function of the
@@ -110,7 +165,7 @@ FLOOR = {"supply_pressure": 1e-9}
 @lru_cache(maxsize=16)
 def _pi_basis(exc: str, seed: int, lo: float) -> np.ndarray:
     """Orthonormal basis of the PI regressors (50 operators and an offset) of the excitation."""
-    duty = excitation(exc, seed, lo)
+    duty = _duty(exc, seed, lo)
     xs = Scaling.from_data(duty)
     Y = regressors(thresholds(50), xs.to_unit(duty))
     q, _ = np.linalg.qr(np.column_stack([Y, np.ones(len(duty))]))
@@ -152,14 +207,22 @@ def size_effect(word: str, target_rms: float, exc: str, seed: int, lo: float, it
 
 
 def make_case(words: tuple, exc: str, seed: int, noise: float, size: float = 1.0) -> Case:
-    """A case with ``words`` sized to ``size`` x noise each (sensor offset cases use the model file)."""
+    """A case with ``words`` sized to ``size`` x noise each (sensor offset and closed-loop cases use the
+    model file: a closed-loop run is held against the model its feedforward used)."""
     lo = DEAD_ZONE_LO_PCT if "dead_zone" in words else 40.0
     eff = tuple((w, size_effect(w, size * noise, exc, seed, lo)) for w in words)
-    return Case(eff, exc, seed, noise, with_model="sensor_offset" in words, size=size)
+    return Case(eff, exc, seed, noise, with_model="sensor_offset" in words or exc == "closed_loop", size=size)
 
 
 def record(case: Case, keep_temp: bool = False) -> Recording:
-    """The case's recording (columns of DESIGN.md; coil_temp_c dropped unless ``keep_temp``)."""
+    """The case's recording (columns of DESIGN.md; coil_temp_c dropped unless ``keep_temp``; a
+    closed-loop case has the columns of ``valvectl run --record``)."""
+    if case.excitation == "closed_loop":
+        from controller.watchdog import STATES
+
+        cols = closed_loop_run(case.effects, case.seed, case.lo_pct, case.noise_lpm)
+        state = [STATES[int(v)] for v in cols["state"]]
+        return Recording(f"<{case.label()}>", {k: v for k, v in cols.items() if k != "state"}, {"state": state})
     cols = _run(dict(case.effects), excitation(case.excitation, case.seed, case.lo_pct), case.seed, case.noise_lpm)
     keep = ["t_s", "duty_pct", "flow_lpm", "supply_bar"] + (["coil_temp_c"] if keep_temp else [])
     return Recording(f"<{case.label()}>", {k: np.asarray(cols[k], dtype=np.float64) for k in keep})
@@ -178,4 +241,15 @@ def cases(seeds=(1, 2, 3), noises=(0.25, 0.5, 1.0), excitations=EXCITATIONS, pai
         for (a, b), exc in zip(combos, itertools.cycle(excitations)):
             for seed in seeds[:2]:
                 out.append(make_case((a, b), exc, seed, 0.5, size))
+    return out
+
+
+def matrix(seeds=(1,), noise: float = 0.5, sizes=MATRIX_SIZES, excitations=MATRIX_EXCITATIONS, words=WORDS) -> list:
+    """The magnitude x excitation matrix: every word alone at every size on every excitation, and each
+    excitation effect free."""
+    out = []
+    for exc, seed in itertools.product(excitations, seeds):
+        out.append(Case((), exc, seed, noise, with_model=exc == "closed_loop"))
+        for w, size in itertools.product(words, sizes):
+            out.append(make_case((w,), exc, seed, noise, size))
     return out

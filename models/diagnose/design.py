@@ -362,27 +362,27 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
     K = folds.k
     order, edges = folds.fold_order()
     sl = [slice(edges[k], edges[k + 1]) for k in range(K)]
-    Xo = design.X[order]
-    ro = (y - design.F)[order]
-    w = (folds.fit_ok & design.fit_ok)[order].astype(np.float64)
-    Xw = Xo * w[:, None]
-    p = Xo.shape[1]
+    p = design.X.shape[1]
+    # one gather and one Gram matrix per fold of [X, y - F]: the normal equations and the squared
+    # residual together; the rows a fit may not use (guards, clipped rows) are few, so their Gram
+    # matrix is subtracted rather than the fitted rows' formed anew
+    Z = np.column_stack([design.X, y - design.F])[order]
+    out = ~(folds.fit_ok & design.fit_ok)[order]
+    G = np.stack([_gram(Z[i], Z[i]) for i in sl])
+    Gw = G - np.stack([_gram(Z[i][out[i]], Z[i][out[i]]) for i in sl])
     if p:
-        A = np.stack([_gram(Xw[i], Xo[i]) for i in sl])
-        b = np.stack([np.einsum("n,np->p", ro[i], Xw[i]) for i in sl])
+        A, b = Gw[:, :p, :p], Gw[:, :p, p]
         At, bt = A.sum(axis=0), b.sum(axis=0)
         theta = np.column_stack([solve(At - A[k], bt - b[k]) for k in range(K)])
     else:
         theta = np.zeros((0, K))
     if design.clip_hi is None:
-        Aa = np.stack([_gram(Xo[i], Xo[i]) for i in sl])
-        ba = np.stack([np.einsum("n,np->p", ro[i], Xo[i]) for i in sl])
-        ca = np.array([np.einsum("n,n->", ro[i], ro[i]) for i in sl])
+        Aa, ba, ca = G[:, :p, :p], G[:, :p, p], G[:, p, p]
         # sse[k, j] for theta_k on fold j
         sse = ca[None, :] - 2.0 * (theta.T @ ba.T) + np.einsum("pk,jpq,qk->kj", theta, Aa, theta)
     else:
         Fo, yo = design.F[order], y[order]
-        q = np.minimum(Fo[:, None] + Xo @ theta, design.clip_hi)
+        q = np.minimum(Fo[:, None] + Z[:, :p] @ theta, design.clip_hi)
         e2 = (q - yo[:, None]) ** 2
         sse = np.stack([e2[i].sum(axis=0) for i in sl], axis=1)
     return CVResult(sse, np.diff(edges))

@@ -62,6 +62,9 @@ TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
 REFINE_EVALS = 16
 #: Training rows an exact-law refinement fits on (a regular subsample beyond this).
 REFINE_ROWS = 12000
+#: Training rows the PI is refitted on at each grid point of a joint screen (a regular subsample
+#: beyond this; 51 weights are well placed by far fewer, and the refit is the screen's cost).
+SCREEN_ROWS = 30000
 
 
 def grid_points(word: Word, sig: Signals, base: Base) -> list[dict]:
@@ -118,7 +121,9 @@ def design(word: str, base: Base, sig: Signals, chain: dict, folds: Folds,
            rows: np.ndarray | None = None) -> tuple[Design, Base]:
     """The design of ``chain`` when testing ``word``, and its base (the PI refitted jointly with a
     word it absorbs on ``rows``, by default the training rows: :func:`models.diagnose.design.unbend`)."""
-    b = unbend(base, sig, chain, folds.train if rows is None else rows) if VOCABULARY[word].joint_with_pi else base
+    if not VOCABULARY[word].joint_with_pi:
+        return build(base, sig, chain), base
+    b = unbend(base, sig, chain, _subsample(folds.train, SCREEN_ROWS) if rows is None else rows)
     return build(b, sig, chain), b
 
 
@@ -205,10 +210,11 @@ def train_residual(d: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return d.predict(theta)[rows] - y[rows]
 
 
-def _subsample(rows: np.ndarray) -> np.ndarray:
-    """A regular subsample of ``rows`` of about :data:`REFINE_ROWS`: every exact-law evaluation refits
-    the PI, and a smooth law of a few parameters needs no more than some ten thousand rows."""
-    every = max(1, int(rows.sum()) // REFINE_ROWS)
+def _subsample(rows: np.ndarray, n: int | None = None) -> np.ndarray:
+    """A regular subsample of ``rows`` of about ``n`` (default :data:`REFINE_ROWS`): every exact-law
+    evaluation refits the PI, and a smooth law of a few parameters needs no more than some ten
+    thousand rows to place them."""
+    every = max(1, int(rows.sum()) // (n or REFINE_ROWS))
     return rows & (np.arange(len(rows)) % every == 0)
 
 
@@ -240,18 +246,22 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
     grid = w.grid(sig, base)
     for key, values in grid.items():
         values = np.asarray(values, dtype=float)
-        if len(values) < 3 or np.any(values <= 0) or key not in params:
+        if len(values) < 3 or key not in params:
             continue
+        # between the grid neighbours, in log scale for a positive parameter (a time constant)
+        log = bool(np.all(values > 0))
+        to, back = (np.log, np.exp) if log else (float, float)
         i = int(np.argmin(np.abs(values - params[key])))
-        lo, hi = np.log(values[max(i - 1, 0)]), np.log(values[min(i + 1, len(values) - 1)])
+        lo, hi = to(values[max(i - 1, 0)]), to(values[min(i + 1, len(values) - 1)])
 
         def cost(u):
-            return train_sse(design(word, base, sig, {**chain, word: {**params, key: float(np.exp(u))}}, folds)[0],
-                             y, rows)
+            p = {**params, key: float(back(u))}
+            return train_sse(design(word, base, sig, {**chain, word: p}, folds)[0], y, rows)
 
-        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02, "maxiter": 12})
-        if res.fun < cost(np.log(params[key])):
-            params[key] = float(np.exp(res.x))
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 0.02 if log else 0.02 * (hi - lo), "maxiter": 12})
+        if res.fun < cost(to(params[key])):
+            params[key] = float(back(res.x))
     return params
 
 
@@ -411,6 +421,18 @@ def _alternative(c: Candidate, phys: dict, cands: dict, passing: list, sel: Sele
     return {other.word}
 
 
+def _within_phase(word: str, params: dict, chain: dict, sig: Signals) -> str | None:
+    """A lag or delay shorter than one sample on top of the other word of :data:`DYNAMIC`: within a
+    sample the two are one thing (the named one's sampling phase), so it is not resolved."""
+    if word not in DYNAMIC or DYNAMIC[1 - DYNAMIC.index(word)] not in chain:
+        return None
+    key = TIME_PARAM[word]
+    if params[key] * sig.rate_hz < 1.0:
+        return (f"{key} = {params[key]:.4g} s, less than one sample on top of the named "
+                f"{DYNAMIC[1 - DYNAMIC.index(word)]}: within a sample a lag and a delay are one thing")
+    return None
+
+
 def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float) -> tuple:
     """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or
     ``(outcome, why)`` when they are not physical, not resolved, or the recording does not show the law."""
@@ -421,7 +443,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
     d, b = design(c.word, b, sig, full, folds)
     theta = fit_final(d, sig.flow_lpm, folds.train)
     phys = w.physical(params, _coef(c.word, d, theta), sig, b)
-    why = w.implausible(phys) or w.not_resolved(params, sig, b)
+    why = w.implausible(phys) or w.not_resolved(params, sig, b) or _within_phase(c.word, params, chain, sig)
     if why:
         return NOT_PHYSICAL, why
     d0 = build(cur, sig, chain)

@@ -175,6 +175,10 @@ class Word:
         return None
 
 
+#: Fewest rows at a range end that can show a dead zone or a saturation.
+MIN_END_ROWS = 3
+
+
 def _span(sig: Signals) -> float:
     return float(sig.t_s[-1] - sig.t_s[0])
 
@@ -224,7 +228,7 @@ class CoilHeating(Word):
     def grid(self, sig, base):
         if sig.coil_temp_c is not None:
             return {"copper_law_ratio": np.array([1.0])}
-        tau = np.geomspace(20.0, 2000.0, 11)  # a solenoid coil warms over minutes
+        tau = np.geomspace(20.0, 2000.0, 8)  # a solenoid coil warms over minutes
         # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
         return {"tau_s": tau[tau <= 2.0 * _span(sig)], "start": np.array([0.0, 1.0])}
 
@@ -332,7 +336,7 @@ class ValveDynamics(Word):
     """First-order lag of the flow."""
 
     def grid(self, sig, base):
-        return {"tau_s": np.geomspace(0.005 / sig.rate_hz, 1.5, 24), "phase": np.array([0.0, 0.5, 1.0])}
+        return {"tau_s": np.geomspace(0.005 / sig.rate_hz, 1.5, 16), "phase": np.array([0.0, 0.5, 1.0])}
 
     def dynamics(self, v, rate_hz, params):
         return fx.first_order_lag(v, rate_hz, params["tau_s"], phase=params.get("phase", 1.0))
@@ -343,7 +347,7 @@ class TransportDelay(Word):
     """Pure delay from command to measured flow."""
 
     def grid(self, sig, base):
-        return {"delay_s": np.geomspace(0.005 / sig.rate_hz, 0.8, 28)}
+        return {"delay_s": np.geomspace(0.005 / sig.rate_hz, 0.8, 20)}
 
     def dynamics(self, v, rate_hz, params):
         return fx.delayed(v, rate_hz, params["delay_s"])
@@ -371,7 +375,7 @@ class DeadZone(Word):
 
     def support(self, sig, params, before_lpm, noise_lpm):
         shut = sig.duty_pct <= params["cracking_pct"]
-        if shut.sum() < max(10, 0.002 * len(shut)):
+        if shut.sum() < MIN_END_ROWS:
             return f"only {int(shut.sum())} rows below the cracking duty"
         # where the law says the valve is shut, the flow must really stop: measured flow at zero
         # within the noise, while the model before it predicted flow there
@@ -399,7 +403,7 @@ class Saturation(Word):
 
     def support(self, sig, params, before_lpm, noise_lpm):
         top = before_lpm > params["full_open_lpm"]
-        if top.sum() < max(10, 0.002 * len(top)):
+        if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
         # where the law clips, the measured flow must flatten at the full-open flow
         q = sig.flow_lpm[top]
