@@ -147,3 +147,78 @@ def test_foreign_concealed_effect_is_named(word, exc):
     assert word in [f.effect for f in d.findings]
     for f in d.findings:
         assert f.holdout_rmse_after < f.holdout_rmse_before
+
+
+# -- gross effects, measured states, closed-loop runs --
+
+def test_readme_example(tmp_path):
+    # the README's own example: a coil 20 K warm at 55 % duty (coil_temp_c recorded) and a 10 ms delay
+    sim, d_json = tmp_path / "sim.csv", tmp_path / "D.json"
+    assert main(["simulate", "--effect", "coil_heating=20", "--effect", "transport_delay=0.01", "--duration", "600",
+                 "--seed", "1", "-o", str(sim)]) == 0
+    assert main(["diagnose", str(sim), "--json", str(d_json)]) == 0
+    d = json.loads(d_json.read_text())
+    named = {f["effect"]: f for f in d["findings"]}
+    assert "coil_heating" in named and "dead_zone" not in named
+    rise = d["model"]["augmented"]["effects"]["coil_heating"]["rise55_k"]
+    assert rise == pytest.approx(20.0, rel=0.25)
+    assert "transport_delay" in named or "transport_delay" in d["model"]["not_identifiable"]
+    for f in d["findings"]:
+        assert f["holdout_rmse_after"] < f["holdout_rmse_before"]
+
+
+def _plant_recording(effects: dict, protocol: str, duration_s: float, seed: int = 3):
+    from models.recording import Recording
+    from plant_sim.plant import Plant, load_plant
+    from plant_sim.protocols import protocol as make
+
+    cols = Plant(load_plant(S.PLANT_TOML, effects), 100.0, seed=seed).simulate(make(protocol, 100.0, duration_s, seed))
+    return Recording("<gross>", {k: np.asarray(cols[k], float) for k in ("t_s", "duty_pct", "flow_lpm")})
+
+
+def test_gross_coil_heating_is_modelled_by_its_exact_law():
+    # 30 K at 55 % duty, no temperature column: the effective duty shifts by some 10 %, far past the
+    # first-order column; the exact law recovers the rise and the thermal time constant
+    d = diagnose_response(_plant_recording({"coil_heating": 30.0}, "paper_identification", 300.0))
+    named = {f.effect: f for f in d.findings}
+    assert list(named)[0] == "coil_heating" and "dead_zone" not in named
+    p = named["coil_heating"].params
+    assert p["rise55_k"] == pytest.approx(30.0, rel=0.25)
+    assert p["tau_s"] == pytest.approx(180.0, rel=0.35)  # plant.toml's coil
+    f = named["coil_heating"]
+    assert f.holdout_rmse_after < 0.3 * f.holdout_rmse_before and f.slope > 0.7
+
+
+def test_gross_dead_zone_is_named_at_its_cracking_duty():
+    d = diagnose_response(_plant_recording({"dead_zone": 45.0}, "paper_identification", 300.0))
+    named = {f.effect: f for f in d.findings}
+    assert list(named)[0] == "dead_zone"
+    assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=0.5)
+
+
+def test_closed_loop_run_is_diagnosed_against_its_feedforward_model():
+    # a closed-loop run (ff+kf on a breath profile) of a valve with a lag the model leaves out (sized at
+    # five times the noise on the run's own duty),
+    # recorded as valvectl run --record writes it, held against the feedforward's model file
+    lag = S.make_case(("valve_dynamics",), "closed_loop", seed=2, noise=0.5, size=5.0)
+    d = diagnose_response(S.record(lag), load_model(S.MODEL_JSON))
+    assert {"valve_dynamics", "transport_delay"} & {f.effect for f in d.findings}
+    free = S.Case((), "closed_loop", 2, 0.5, with_model=True)
+    assert diagnose_response(S.record(free), load_model(S.MODEL_JSON)).findings == []
+
+
+@pytest.mark.slow
+def test_magnitude_by_excitation_matrix():
+    # every word at 1, 5 and 30 times the noise on every excitation, and each excitation effect free
+    hits, free_findings, worse = {}, [], []
+    for case in S.matrix():
+        d = diagnose_response(S.record(case), load_model(S.MODEL_JSON) if case.with_model else None)
+        named = [f.effect for f in d.findings]
+        worse += [(case.label(), f.effect) for f in d.findings if f.holdout_rmse_after >= f.holdout_rmse_before]
+        if not case.words:
+            free_findings += [(case.label(), named)] if named else []
+        else:
+            hits.setdefault(case.size, []).append(case.words[0] in named)
+    assert free_findings == [] and worse == []
+    for size, h in hits.items():
+        assert np.mean(h) >= 0.95, (size, np.mean(h))

@@ -1,29 +1,30 @@
 """The augmented model: baseline plus a chain of effects, as a linear regression.
 
-For fixed nonlinear parameters (time constants, delay, exponent, cracking
-duty, full-open flow) every effect of :mod:`models.diagnose.effects` keeps the
-model linear in its remaining unknowns, so the augmented model is::
+For fixed nonlinear parameters every word of :mod:`models.diagnose.words`
+keeps the model linear in its remaining unknowns, so the augmented model is::
 
     q(t) = min(F(t) + X(t) theta, q_sat)
+
+:func:`build` asks each word in the chain for its part: the duty the
+hysteresis core sees (a warm coil's effective duty) and the lift of its
+descending thresholds (the exact laws, which refit the PI on them), linear
+columns at the valve (first-order asymmetry and heating, the supply
+exponent), a pointwise gain (a dead zone), a time response (delay, lag;
+the hysteresis is time invariant and causal, so delaying its input and
+delaying its output are the same), columns at the sensor (creep, offset)
+and a clip (saturation).
 
 The hysteresis core's weights are fitted once on all training rows, under
 the effects named so far and jointly with an effect under test that it absorbs
 (:func:`unbend`), never per fold: a PI of 50 operators refitted on 5/6 of the
 training blocks is far less stable on the sixth (rare excursions set the
 states of the wide operators) than the effects it is meant to reveal; the
-leak this leaves is measured by the calibration on effect-free recordings. With a baseline fitted on the recording its
-prediction enters with a free *gain*, *offset*, *loop width* and *duty
-scale* (``x dq/dx``: the response to a constant change of the coil current),
-the ways a baseline fitted with an effect present has bent to absorb it on
-average;
-with a model file the model's prediction is held fixed in ``F``. Each linear
-effect adds one column (asymmetric lift, coil heating, supply-pressure
-exponent, creep amplitude, sensor offset). Whole-flow transforms (dead zone,
-transport delay, lag) act on ``F`` and on every column; the hysteresis is
-time invariant and causal, so delaying its input and delaying its output are
-the same. Coil heating scales the effective duty by a few per cent at most
-(0.393 %/K), so it enters to first order: ``q(x (1 - e)) ~ q(x) - e x dq/dx``
-along the actual input history.
+leak this leaves is measured by the calibration on effect-free recordings.
+With a baseline fitted on the recording its prediction enters with a free
+*gain*, *offset*, *loop width* and *duty scale* (``x dq/dx``: the response
+to a constant change of the coil current), the ways a baseline fitted with
+an effect present has bent to absorb it on average; with a model file the
+model's prediction, run as the simulated valve runs it, is held fixed in ``F``.
 """
 from __future__ import annotations
 

@@ -1,0 +1,109 @@
+"""The vocabulary of the diagnosis and its checks against their equations: one object per effect word,
+the holdout slope and correlation, the noise estimate, the range-end support, closed-loop rows."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from models.diagnose import follows
+from models.diagnose import effects as fx
+from models.diagnose.calibrate import load_margins
+from models.diagnose.signals import Signals, noise_lpm, running_rows
+from models.diagnose.trace import BELOW_MARGIN, Decision, explain
+from models.diagnose.words import VOCABULARY, WORDS, thermal_fit
+from models.recording import InputError, Recording
+from plant_sim.effects import EFFECTS as PLANT_EFFECTS
+
+
+def _sig(duty, flow, rate=100.0, **kw):
+    t = np.arange(len(duty)) / rate
+    return Signals(t, np.asarray(duty, float), np.asarray(flow, float), kw.get("supply"), kw.get("temp"), rate)
+
+
+def test_one_object_per_design_word():
+    # the diagnosis' words are DESIGN.md's (plant_sim implements the same list), each one object
+    assert set(WORDS) == set(PLANT_EFFECTS)
+    assert list(VOCABULARY) == list(WORDS)
+    for w, word in VOCABULARY.items():
+        assert word.word == w and word.physics
+        assert set(word.plausible) <= set(word.units)  # every checked parameter has a unit
+    assert set(load_margins().gain) == set(WORDS)
+
+
+@settings(max_examples=20, deadline=None)
+@given(scale=st.floats(0.1, 10.0), noise=st.floats(0.0, 0.5), seed=st.integers(0, 1000))
+def test_follows_recovers_the_slope_of_a_scaled_correction(scale, noise, seed):
+    rng = np.random.default_rng(seed)
+    delta = rng.normal(size=4000)
+    resid = scale * delta + noise * rng.normal(size=4000)
+    slope, corr = follows(resid, delta)
+    # least squares through the origin: the slope is scale within a few standard errors
+    assert slope == pytest.approx(scale, abs=5 * noise / np.sqrt(4000) + 1e-9)
+    assert corr == pytest.approx(scale / np.sqrt(scale ** 2 + noise ** 2), abs=0.03)
+
+
+def test_a_correction_ten_times_the_residual_does_not_follow_it():
+    # the README's old dead zone: a correction peaking at 11 L/min against a residual of about 1
+    rng = np.random.default_rng(1)
+    resid = rng.normal(size=2000)
+    slope, _ = follows(resid, 10 * resid + rng.normal(size=2000))
+    assert slope < 0.15
+
+
+def test_noise_estimate_from_second_differences():
+    rng = np.random.default_rng(2)
+    t = np.arange(20000) / 100.0
+    smooth = 80 + 40 * np.sin(2 * np.pi * t / 7.0) + 10 * (t > 50)  # a step does not count
+    assert noise_lpm(smooth + rng.normal(0, 0.5, len(t))) == pytest.approx(0.5, rel=0.05)
+
+
+def test_dead_zone_needs_the_flow_to_stop():
+    dz = VOCABULARY["dead_zone"]
+    duty = np.r_[np.linspace(30, 70, 1000), np.linspace(70, 30, 1000)]
+    before = np.clip((duty - 35) * 4, 0, None)  # the model before it: flow from 35 %
+    shut = np.where(duty < 42, 0.0, before)
+    rng = np.random.default_rng(3)
+    assert dz.support(_sig(duty, shut + rng.normal(0, 0.5, len(duty))), {"cracking_pct": 42.0}, before, 0.5) is None
+    # the flow goes on below the cracking duty: no dead zone there, whatever the fit says
+    why = dz.support(_sig(duty, before + rng.normal(0, 0.5, len(duty))), {"cracking_pct": 42.0}, before, 0.5)
+    assert "does not stop" in why
+
+
+def test_saturation_needs_the_flow_to_flatten():
+    sat = VOCABULARY["saturation"]
+    duty = np.linspace(40, 70, 3000)
+    before = (duty - 35) * 5  # up to 175 L/min
+    flat = np.minimum(before, 150.0)
+    assert sat.support(_sig(duty, flat), {"full_open_lpm": 150.0}, before, 0.5) is None
+    assert "does not flatten" in sat.support(_sig(duty, before), {"full_open_lpm": 150.0}, before, 0.5)
+
+
+def test_thermal_fit_recovers_the_heating_law_from_a_measured_temperature():
+    rate = 10.0
+    duty = np.r_[np.full(3000, 60.0), np.full(3000, 45.0)]
+    rise = fx.coil_temperature_rise(duty, rate, 150.0, 25.0, 0.0)
+    p = thermal_fit(_sig(duty, np.zeros(len(duty)), rate, temp=22.0 + rise))
+    assert p["rise55_k"] == pytest.approx(25.0, rel=0.01)
+    assert p["tau_s"] == pytest.approx(150.0, rel=0.01)
+    assert p["ambient_c"] == pytest.approx(22.0, abs=0.05)
+
+
+def test_closed_loop_recording_keeps_its_longest_running_stretch():
+    n = 100
+    state = ["safe"] * 10 + ["running"] * 30 + ["fault"] * 5 + ["running"] * 50 + ["safe"] * 5
+    rec = Recording("<run>", {"t_s": np.arange(n) / 10.0, "duty_pct": np.full(n, 50.0), "flow_lpm": np.ones(n)},
+                    {"state": state})
+    cut = running_rows(rec)
+    assert len(cut) == 50 and cut.t_s[0] == pytest.approx(4.5)
+    plain = Recording("<open>", rec.columns)
+    assert running_rows(plain) is plain
+    with pytest.raises(InputError, match="running"):
+        running_rows(Recording("<x>", rec.columns, {"state": ["safe"] * n}))
+
+
+def test_decision_trace_is_data_the_report_words():
+    d = Decision("creep", 0, 0.01, 0.03, 2, 3, 6, 4, "linearized", BELOW_MARGIN)
+    assert d.to_dict()["outcome"] == BELOW_MARGIN
+    assert "-1.00 %" in explain(d) and "needs below -3.00 %" in explain(d)
