@@ -23,12 +23,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 from diagnose_suite import EXCITATIONS, MODEL_JSON, Case, record  # noqa: E402
 
-from models.diagnose.calibrate import PATH, calibrate  # noqa: E402
+from models.diagnose.calibrate import PATH, calibrate, load_margins  # noqa: E402
 from models.diagnose.design import fit_baseline, fixed_base  # noqa: E402
-from models.diagnose.detectors import EFFECTS, WORDS, reference, test_effect  # noqa: E402
+from models.diagnose.detectors import reference, test_effect  # noqa: E402
 from models.diagnose.folds import make_folds  # noqa: E402
 from models.diagnose.signals import work_signals  # noqa: E402
 from models.model import load_model  # noqa: E402
+from models.diagnose.words import VOCABULARY, WORDS  # noqa: E402
 from models.recording import Recording  # noqa: E402
 
 SEEDS = (11, 12, 13)
@@ -47,12 +48,14 @@ def free_gains_one(job) -> dict:
     sig = work_signals(rec)
     folds = make_folds(sig.t_s)
     out = {}
+    margins = load_margins()
     for base in (fit_baseline(sig, folds), fixed_base(load_model(MODEL_JSON), sig)):
         base, before = reference(base, sig, folds)
         for w in WORDS:
-            if EFFECTS[w].applicable(sig, base) or (not base.refit and w != "sensor_offset"):
+            if VOCABULARY[w].applicable(sig, base) or (not base.refit and w != "sensor_offset"):
                 continue
-            c = test_effect(w, {}, before, base, sig, folds)
+            # the exact law is refined where the screen's training error falls by the current margin
+            c = test_effect(w, {}, before, base, sig, folds, margins.gain[w])
             out.setdefault(w, []).append((c.gain, c.wins))
     return out
 

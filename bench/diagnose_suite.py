@@ -91,7 +91,7 @@ MATRIX_SIZES = (1.0, 5.0, 30.0)
 
 
 @lru_cache(maxsize=8)
-def closed_loop_run(effects: tuple, seed: int, lo_pct: float, noise_lpm: float) -> dict:
+def closed_loop_run(effects: tuple, seed: int, lo_pct: float, noise_lpm: float, duration_s: float = DURATION_S) -> dict:
     """A closed-loop run (ff+kf, config/run.toml's breath profile, simulated clock at
     :data:`LOOP_RATE_HZ`) of plant_sim with ``effects``: the columns of ``valvectl run --record``.
 
@@ -111,7 +111,7 @@ def closed_loop_run(effects: tuple, seed: int, lo_pct: float, noise_lpm: float) 
                   LOOP_RATE_HZ, seed=seed)
     loop = Loop(controller_params(cfg, "ff+kf", model), SimTransport(plant), ProfileReference(profile.value),
                 LoopSettings(rate_hz=LOOP_RATE_HZ), clock=SimClock())
-    cols = loop.run(DURATION_S).columns
+    cols = loop.run(duration_s).columns
     keep = {k: np.asarray(cols[k], dtype=np.float64) for k in ("t_s", "ref_lpm", "flow_lpm", "duty_pct")}
     keep["state"] = np.asarray(cols["state"])
     return keep
@@ -218,11 +218,7 @@ def record(case: Case, keep_temp: bool = False) -> Recording:
     """The case's recording (columns of DESIGN.md; coil_temp_c dropped unless ``keep_temp``; a
     closed-loop case has the columns of ``valvectl run --record``)."""
     if case.excitation == "closed_loop":
-        from controller.watchdog import STATES
-
-        cols = closed_loop_run(case.effects, case.seed, case.lo_pct, case.noise_lpm)
-        state = [STATES[int(v)] for v in cols["state"]]
-        return Recording(f"<{case.label()}>", {k: v for k, v in cols.items() if k != "state"}, {"state": state})
+        return closed_loop_recording(case.effects, case.seed, case.noise_lpm, case.lo_pct, label=case.label())
     cols = _run(dict(case.effects), excitation(case.excitation, case.seed, case.lo_pct), case.seed, case.noise_lpm)
     keep = ["t_s", "duty_pct", "flow_lpm", "supply_bar"] + (["coil_temp_c"] if keep_temp else [])
     return Recording(f"<{case.label()}>", {k: np.asarray(cols[k], dtype=np.float64) for k in keep})
@@ -242,6 +238,16 @@ def cases(seeds=(1, 2, 3), noises=(0.25, 0.5, 1.0), excitations=EXCITATIONS, pai
             for seed in seeds[:2]:
                 out.append(make_case((a, b), exc, seed, 0.5, size))
     return out
+
+
+def closed_loop_recording(effects: tuple, seed: int, noise_lpm: float, lo_pct: float = 40.0,
+                          duration_s: float = DURATION_S, label: str = "closed loop") -> Recording:
+    """A closed-loop run (:func:`closed_loop_run`) as ``valvectl run --record`` writes it."""
+    from controller.watchdog import STATES
+
+    cols = closed_loop_run(tuple(effects), seed, lo_pct, noise_lpm, duration_s)
+    state = [STATES[int(v)] for v in cols["state"]]
+    return Recording(f"<{label}>", {k: v for k, v in cols.items() if k != "state"}, {"state": state})
 
 
 def matrix(seeds=(1,), noise: float = 0.5, sizes=MATRIX_SIZES, excitations=MATRIX_EXCITATIONS, words=WORDS) -> list:

@@ -197,14 +197,15 @@ def test_gross_dead_zone_is_named_at_its_cracking_duty():
 
 
 def test_closed_loop_run_is_diagnosed_against_its_feedforward_model():
-    # a closed-loop run (ff+kf on a breath profile) of a valve with a lag the model leaves out (sized at
-    # five times the noise on the run's own duty),
-    # recorded as valvectl run --record writes it, held against the feedforward's model file
-    lag = S.make_case(("valve_dynamics",), "closed_loop", seed=2, noise=0.5, size=5.0)
-    d = diagnose_response(S.record(lag), load_model(S.MODEL_JSON))
-    assert {"valve_dynamics", "transport_delay"} & {f.effect for f in d.findings}
-    free = S.Case((), "closed_loop", 2, 0.5, with_model=True)
-    assert diagnose_response(S.record(free), load_model(S.MODEL_JSON)).findings == []
+    # a closed-loop run (ff+kf on a breath profile, 90 s at 200 Hz) of a valve with a 50 ms lag the model
+    # leaves out, with the columns of valvectl run --record, held against the feedforward's model file
+    model = load_model(S.MODEL_JSON)
+    d = diagnose_response(S.closed_loop_recording((("valve_dynamics", 0.05),), 2, 0.5, duration_s=90.0), model)
+    named = {f.effect: f for f in d.findings}
+    assert set(named) & {"valve_dynamics", "transport_delay"} and not set(named) - {"valve_dynamics", "transport_delay"}
+    if "valve_dynamics" in named and named["valve_dynamics"].alternative_to is None:
+        assert named["valve_dynamics"].params["tau_s"] == pytest.approx(0.05, rel=0.3)
+    assert diagnose_response(S.closed_loop_recording((), 2, 0.5, duration_s=90.0), model).findings == []
 
 
 @pytest.mark.slow

@@ -95,10 +95,12 @@ def test_closed_loop_recording_keeps_its_longest_running_stretch():
     state = ["safe"] * 10 + ["running"] * 30 + ["fault"] * 5 + ["running"] * 50 + ["safe"] * 5
     rec = Recording("<run>", {"t_s": np.arange(n) / 10.0, "duty_pct": np.full(n, 50.0), "flow_lpm": np.ones(n)},
                     {"state": state})
-    cut = running_rows(rec)
-    assert len(cut) == 50 and cut.t_s[0] == pytest.approx(4.5)
+    rec.columns["duty_pct"][:10] = 3.0  # the safe duty before the run
+    cut, rest = running_rows(rec)
+    assert len(cut) == 50 and cut.t_s[0] == pytest.approx(4.5) and rest == 3.0
     plain = Recording("<open>", rec.columns)
-    assert running_rows(plain) is plain
+    same, rest = running_rows(plain)
+    assert same is plain and rest is None
     with pytest.raises(InputError, match="running"):
         running_rows(Recording("<x>", rec.columns, {"state": ["safe"] * n}))
 

@@ -189,9 +189,9 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         When the recording is too short for blocked cross-validation.
     """
     margins = margins or load_margins()
-    rec = running_rows(rec)
-    raw = raw_signals(rec)
-    sig = work_signals(rec)
+    rec, rest = running_rows(rec)
+    raw = raw_signals(rec, rest)
+    sig = work_signals(rec, rest)
     try:
         folds = make_folds(sig.t_s)
     except ValueError as exc:

@@ -37,7 +37,6 @@ from .. import play
 from ..model import FittedModel
 from ..pi import PIModel, fit_pi, fit_weights
 from ..preprocess import Scaling
-from .. import pi_asym
 from . import effects as fx
 from .folds import Folds
 from .signals import Signals
@@ -107,11 +106,11 @@ class Base:
         """Prediction (L/min) on ``sig`` under the input-side laws of ``chain`` (effective duty,
         lifted descending thresholds), cached."""
         x, a, key = inputs(sig, chain)
-        if self.refit or (a > 0 and isinstance(self.model.core, PIModel)):
+        if self.refit or (any(a) and isinstance(self.model.core, PIModel)):
             w, c = (self.shape.w, self.shape.offset) if self.refit else (self.model.core.w, self.model.core.offset)
             return self._cached(("q", id(sig), key),
                                 lambda: self.model.y_scale.from_unit(self.regressors(sig, chain) @ w + c))
-        return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz))
+        return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz, sig.rest_pct))
 
     def bends(self, sig: Signals) -> tuple:
         """Loop offset, descending lift and ``x dq/dx`` (all L/min) of the root baseline on ``sig``'s duty:
@@ -130,8 +129,8 @@ class Base:
             # PI (a fitted PI's slope within one segment is its noisiest feature), about the current
             # change of a coil some ten kelvin warm (0.393 %/K)
             eps = 0.05
-            slope = (simulated(self.model, x * (1 + eps), sig.rate_hz)
-                     - simulated(self.model, x * (1 - eps), sig.rate_hz)) / (2 * eps)
+            slope = (simulated(self.model, x * (1 + eps), sig.rate_hz, sig.rest_pct)
+                     - simulated(self.model, x * (1 - eps), sig.rate_hz, sig.rest_pct)) / (2 * eps)
             return loop, lift, slope
 
         return self._cached(("B", id(sig)), make)
@@ -143,9 +142,12 @@ class Base:
 
         def make():
             x_unit = self.shape_scale.to_unit(x)
-            if a > 0:
-                return pi_asym.regressors(self.shape.r, a, 1.0, x_unit)
-            return pi_columns(self.shape.r, x_unit, self.shape.y0)
+            y0 = self.shape.y0
+            if sig.rest_pct is not None:  # at rest at the duty before the first row, within the input range
+                y0 = np.full_like(self.shape.r, np.clip(self.shape_scale.to_unit(sig.rest_pct), -1.0, 1.0))
+            if any(a):
+                return fx.generalized_play(self.shape.r, x_unit, *a, y0=y0)
+            return pi_columns(self.shape.r, x_unit, y0)
 
         # every base refitted from one root shares its thresholds: the operator outputs are the root's
         return self.root._cached(("P", id(sig), key), make, keep=2)
@@ -164,28 +166,31 @@ class Base:
         return hit
 
 
-def simulated(model: FittedModel, duty_pct: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Flow (L/min) of a model file run as the simulated valve runs it: a PI through plant_sim
-    without effects or sensor errors (its input held to the identified range, closing below it,
-    no reverse flow), any other kind by its own prediction. A recording is held against the
-    simulation, and a closed-loop run drives its valve far outside the identified range."""
-    if model.kind != "pi":
-        return model.predict(duty_pct)[0]
-    from plant_sim.plant import Plant, PlantParams
+def simulated(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, rest_pct: float | None = None) -> np.ndarray:
+    """Flow (L/min) of a model file run as the simulated valve runs it: a PI-family model through
+    plant_sim without effects or sensor errors (its input held to the identified range, closing
+    below it, no reverse flow), from rest at ``rest_pct`` (default: the first duty), any other
+    kind by its own prediction. A recording is held against the simulation, and a closed-loop
+    run drives its valve far outside the identified range."""
+    from plant_sim.plant import PLANT_KINDS, BatchPlant, PlantParams
 
-    valve = PlantParams(model, noise_lpm=0.0, scale_factor=0.0, range_lpm=(-1e9, 1e9))
-    return Plant(valve, rate_hz).simulate(np.clip(duty_pct, 0.0, 100.0))["true_flow_lpm"]
+    if model.kind not in PLANT_KINDS:
+        return model.predict(duty_pct)[0]
+    valve = BatchPlant(PlantParams(model, noise_lpm=0.0, scale_factor=0.0, range_lpm=(-1e9, 1e9)), rate_hz)
+    duty = np.clip(duty_pct, 0.0, 100.0)
+    state = valve.init(duty[0] if rest_pct is None else rest_pct)  # at rest before the first row
+    return valve.run(state, duty[None, :])[1]["true_flow_lpm"][0]
 
 
 def inputs(sig: Signals, chain: dict) -> tuple:
-    """The duty the hysteresis core sees under ``chain`` (%), the relative lift of its descending
-    thresholds, and a hashable key of the two."""
-    key, a, warm = [], 0.0, None
+    """The duty the hysteresis core sees under ``chain`` (%), the ``(widen, lift)`` of its descending
+    thresholds (:func:`effects.generalized_play`), and a hashable key of the two."""
+    key, a, warm = [], (0.0, 0.0), None
     for w, p in chain.items():
         word = VOCABULARY[w]
         if word.input_side and word.is_exact(p):
             key.append((w, tuple(sorted(p.items()))))
-            a += word.threshold_lift(p)
+            a = tuple(u + v for u, v in zip(a, word.threshold_widening(p)))
             warm = (word, p) if word.input_side == "duty" else warm
     key = tuple(key)
     x = sig.duty_pct

@@ -232,17 +232,32 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
     if box:
         rows = _subsample(rows)
         keys = list(box)
+        # a parameter refined as its ratio to another (a heating's rise over its time constant: the
+        # initial warming rate, which a short recording pins down while the two alone trade off)
+        over = [keys.index(w.ratio_of[k]) if k in w.ratio_of and w.ratio_of[k] in box else -1 for k in keys]
         lo = np.log([box[k][0] for k in keys])
         hi = np.log([box[k][1] for k in keys])
-        u0 = np.clip(np.log([max(params[k], 1e-12) for k in keys]), lo + 1e-9, hi - 1e-9)
+
+        def to_free(v):
+            return np.array([v[i] - (v[j] if j >= 0 else 0.0) for i, j in enumerate(over)])
+
+        def from_free(u):
+            return np.array([u[i] + (u[j] if j >= 0 else 0.0) for i, j in enumerate(over)])
+
+        flo = np.array([lo[i] - (hi[j] if j >= 0 else 0.0) for i, j in enumerate(over)])
+        fhi = np.array([hi[i] - (lo[j] if j >= 0 else 0.0) for i, j in enumerate(over)])
+        u0 = np.clip(to_free(np.log([max(params[k], 1e-12) for k in keys])), flo + 1e-9, fhi - 1e-9)
+
+        def values(u):
+            return dict(zip(keys, np.exp(np.clip(from_free(u), lo, hi)).tolist()))
 
         def resid(u):
-            p = {**params, **dict(zip(keys, np.exp(u).tolist()))}
-            return train_residual(design(word, base, sig, {**chain, word: p}, folds, rows)[0], y, rows)
+            return train_residual(design(word, base, sig, {**chain, word: {**params, **values(u)}}, folds, rows)[0],
+                                  y, rows)
 
-        res = least_squares(resid, u0, bounds=(lo, hi), diff_step=1e-2, max_nfev=REFINE_EVALS, xtol=1e-3,
+        res = least_squares(resid, u0, bounds=(flo, fhi), diff_step=1e-2, max_nfev=REFINE_EVALS, xtol=1e-3,
                             ftol=1e-6)
-        return {**params, **dict(zip(keys, np.exp(res.x).tolist()))}
+        return {**params, **values(res.x)}
     grid = w.grid(sig, base)
     for key, values in grid.items():
         values = np.asarray(values, dtype=float)

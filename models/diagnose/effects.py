@@ -14,7 +14,10 @@ the initial value (``x0``/``state``) as ``lfilter``'s ``zi`` would.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.signal import lfilter
+
+from .. import play
 
 #: Temperature coefficient of copper resistance (1/K): +0.393 %/K.
 ALPHA_CU_PER_K = 0.00393
@@ -218,3 +221,42 @@ def loop_offset(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.n
 def open_mask(duty_pct: np.ndarray, cracking_pct: float) -> np.ndarray:
     """1 where the duty exceeds the cracking duty, 0 where the valve stays shut."""
     return (np.asarray(duty_pct) > cracking_pct).astype(np.float64)
+
+
+@njit(cache=True)
+def _generalized(r, x, scale, lift, state):
+    out = np.empty((x.shape[0], r.shape[0]))
+    y = state.copy()
+    for k in range(x.shape[0]):
+        for i in range(r.shape[0]):
+            y[i] = play.eq1(y[i], x[k], r[i], r[i] * scale[k] + lift[k])
+            out[k, i] = y[i]
+    return out
+
+
+def generalized_play(r: np.ndarray, x_unit: np.ndarray, widen: float, lift: float, y0=np.nan) -> np.ndarray:
+    """Play operators whose descending thresholds grow with the input level (Al Janaideh, Rakheja
+    & Su's generalized PI): ``r_i (1 + widen s) + lift s``, ``s = (x + 1) / 2`` the position in
+    the input range, so at the top every descending threshold is ``r_i (1 + widen) + lift``.
+
+    ``widen`` widens each operator in proportion to its threshold; ``lift`` adds one amount to
+    all (what lifts the zero-threshold operator too). Operators start by Eq. (3) from ``y0``
+    (NaN: at rest at the first input).
+
+    Parameters
+    ----------
+    r : ndarray, shape (m,)
+        Thresholds (normalized input units).
+    x_unit : ndarray, shape (N,)
+        Normalized input.
+    widen, lift : float
+        Relative and absolute (normalized units) widening of the descending thresholds at the top.
+
+    Returns
+    -------
+    ndarray, shape (N, m)
+    """
+    x = np.ascontiguousarray(x_unit, dtype=np.float64)
+    s = np.clip((x + 1.0) / 2.0, 0.0, 1.0)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    return _generalized(r, x, 1.0 + widen * s, lift * s, play.init(r, x[0], y0))

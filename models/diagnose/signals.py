@@ -40,6 +40,9 @@ class Signals:
         Coil temperature (deg C), when recorded.
     rate_hz : float
         Sample rate (Hz).
+    rest_pct : float or None
+        The duty the valve rested at before the first row (a closed-loop run starts from its
+        safe duty); ``None``: at rest at the first row's duty (Eq. 3 with ``y_i0 = x(0)``).
     cache : dict
         Derived signals kept while they are asked for again (an effective duty).
     """
@@ -50,6 +53,7 @@ class Signals:
     supply_bar: np.ndarray | None
     coil_temp_c: np.ndarray | None
     rate_hz: float
+    rest_pct: float | None = None
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __len__(self) -> int:
@@ -60,17 +64,17 @@ def _varies(x: np.ndarray | None) -> bool:
     return x is not None and float(np.ptp(x)) > 0.0
 
 
-def raw_signals(rec: Recording) -> Signals:
+def raw_signals(rec: Recording, rest_pct: float | None = None) -> Signals:
     """The recording at its own rate (for per-row predictions)."""
     return Signals(rec.t_s, rec.duty_pct, rec.flow_lpm,
                    rec.get("supply_bar") if _varies(rec.get("supply_bar")) else None,
                    rec.get("coil_temp_c") if _varies(rec.get("coil_temp_c")) else None,
-                   rec.rate_hz)
+                   rec.rate_hz, rest_pct)
 
 
-def work_signals(rec: Recording, rate_hz: float = WORK_RATE_HZ) -> Signals:
+def work_signals(rec: Recording, rest_pct: float | None = None, rate_hz: float = WORK_RATE_HZ) -> Signals:
     """Decimate a recording to about ``rate_hz`` (unchanged when not faster than 1.5 x that)."""
-    raw = raw_signals(rec)
+    raw = raw_signals(rec, rest_pct)
     factor = int(raw.rate_hz // rate_hz)
     if raw.rate_hz < 1.5 * rate_hz or factor < 2:
         return raw
@@ -84,7 +88,7 @@ def work_signals(rec: Recording, rate_hz: float = WORK_RATE_HZ) -> Signals:
         return np.convolve(pad, kernel, mode="valid")[::factor]
 
     return Signals(raw.t_s[::factor], average(raw.duty_pct), average(raw.flow_lpm),
-                   average(raw.supply_bar), average(raw.coil_temp_c), raw.rate_hz / factor)
+                   average(raw.supply_bar), average(raw.coil_temp_c), raw.rate_hz / factor, rest_pct)
 
 
 def noise_lpm(flow_lpm: np.ndarray) -> float:
@@ -97,22 +101,30 @@ def noise_lpm(flow_lpm: np.ndarray) -> float:
     return float(np.median(np.abs(d2)) / 0.6745 / np.sqrt(6.0)) if len(d2) else 0.0
 
 
-def running_rows(rec: Recording) -> Recording:
+def running_rows(rec: Recording) -> tuple[Recording, float | None]:
     """A closed-loop run recording (a ``state`` column, ``valvectl run --record``) cut to its longest
-    stretch of ``running`` rows; any other recording as it is.
+    stretch of ``running`` rows, and the duty its valve rested at before it; any other recording as
+    it is, and ``None``.
 
-    In the safe or fault state the controller commands the safe duty and the flow it
-    measures is not the loop's; the longest stretch keeps the hysteresis memory continuous.
+    In the safe or fault state the controller commands the safe duty and the flow it measures is
+    not the loop's; the longest stretch keeps the hysteresis memory continuous. Before it the valve
+    was at the safe duty (the lowest duty of the rows left out; DESIGN.md's default 0 % when the
+    run was running from its first row), which sets the memory the run starts with.
     """
     state = rec.text_columns.get("state")
     if state is None:
-        return rec
+        return rec, None
     run = np.array([s.strip() == "running" for s in state])
-    if run.all():
-        return rec
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
-    if len(edges) == 0:
+    if not run.any():
         raise InputError(f"{rec.path}: column 'state': no row is 'running'")
+    rest = float(np.min(rec.duty_pct[~run])) if (~run).any() else SAFE_DUTY_PCT
+    if run.all():
+        return rec, rest
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
     starts, stops = edges[::2], edges[1::2]
     k = int(np.argmax(stops - starts))
-    return rec.slice(int(starts[k]), int(stops[k]))
+    return rec.slice(int(starts[k]), int(stops[k])), rest
+
+
+#: The controller's safe duty (DESIGN.md's default), where a closed-loop run's valve rests before it runs.
+SAFE_DUTY_PCT = 0.0

@@ -78,9 +78,12 @@ class Word:
     probe : dict
         A plausible size of the effect (its nonlinear parameters) used to say whether the
         excitation can show it at all; empty: not probed.
+    ratio_of : dict
+        Exact-law parameter -> the parameter it is refined as a ratio to (see
+        :func:`models.diagnose.detectors.refine`).
     input_side : str or None
         What the exact law changes at the hysteresis core's input: ``"duty"`` (the effective
-        duty, :meth:`effective_duty`) or ``"thresholds"`` (:meth:`threshold_lift`).
+        duty, :meth:`effective_duty`) or ``"thresholds"`` (:meth:`threshold_widening`).
     """
 
     word: str
@@ -93,6 +96,7 @@ class Word:
     whole_plot: bool = False
     probe: dict = field(default_factory=dict)
     input_side: str | None = None
+    ratio_of: dict = field(default_factory=dict)
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
@@ -121,9 +125,10 @@ class Word:
         """The duty the magnetics see under this word (input-side words), or ``None``."""
         return None
 
-    def threshold_lift(self, params: dict) -> float:
-        """Relative lift of the descending thresholds at the top of the range (exact asymmetry)."""
-        return 0.0
+    def threshold_widening(self, params: dict) -> tuple:
+        """``(widen, lift)`` of the descending thresholds at the top of the range (exact asymmetry,
+        :func:`effects.generalized_play`)."""
+        return 0.0, 0.0
 
     def valve_columns(self, ctx: Columns, params: dict) -> list:
         """Linear columns at the valve, before the dead zone and the dynamics."""
@@ -185,25 +190,27 @@ def _span(sig: Signals) -> float:
 
 @dataclass(frozen=True)
 class AsymmetricHysteresis(Word):
-    """Descending thresholds lifted with the input level (generalized PI)."""
+    """Descending thresholds widened with the input level (generalized PI)."""
 
     def exact_starts(self, params, coef, sig, base):
         from .design import major_loop_half_width
 
         if not base.refit:
             return []
+        # each operator widened in proportion to its threshold, or all lifted by one amount (the
+        # zero-threshold operator too): the exact law has both, started on a coarse grid
         h = major_loop_half_width(base.shape.r, base.lift_w)
         first = float(np.clip(coef / h if h > 1e-3 else 0.1, 0.01, 20.0))
-        return [{"extra_width": a} for a in sorted({first, 0.1, 0.3, 1.0, 3.0})]
+        return [{"widen": a, "lift": c * h} for a in sorted({first, 0.1, 0.5, 2.0}) for c in (1e-3, 0.3, 1.0, 3.0)]
 
     def bounds(self, sig, base):
-        return {"extra_width": (0.005, 40.0)}
+        return {"widen": (1e-3, 40.0), "lift": (1e-4, 2.0)}
 
     def is_exact(self, params):
-        return "extra_width" in params
+        return "widen" in params
 
-    def threshold_lift(self, params):
-        return float(params.get("extra_width", 0.0))
+    def threshold_widening(self, params):
+        return float(params.get("widen", 0.0)), float(params.get("lift", 0.0))
 
     def valve_columns(self, ctx, params):
         return [] if self.is_exact(params) else [ctx.lift_lpm]
@@ -211,11 +218,13 @@ class AsymmetricHysteresis(Word):
     def physical(self, params, coef, sig, base):
         from .design import major_loop_half_width
 
-        if self.is_exact(params):
-            # every operator's descending threshold r (1 + a s): a is the relative extra width at the top
-            return {"extra_width": float(params["extra_width"])}
-        p = {"lift_pct": float(coef) * base.shape_scale.half_range}
         h = major_loop_half_width(base.shape.r, base.lift_w)
+        if self.is_exact(params):
+            # descending thresholds r (1 + widen) + lift at the top: relative extra width over the
+            # loop's half-width h
+            return {"extra_width": float(params["widen"] + params["lift"] / h), "widen": float(params["widen"]),
+                    "lift_pct": float(params["lift"]) * base.shape_scale.half_range}
+        p = {"lift_pct": float(coef) * base.shape_scale.half_range}
         if h > 1e-3:
             p["extra_width"] = float(coef) / h
         return p
@@ -235,12 +244,11 @@ class CoilHeating(Word):
     def exact_starts(self, params, coef, sig, base):
         if self.is_exact(params):
             return []
-        # the first-order column saturates on a large rise and biases the screen's time constant:
-        # a coarse grid of the exact law's rise and time constant around it
-        lo, hi = self.bounds(sig, base)["tau_s"]
-        taus = np.clip(params["tau_s"] * np.array([0.3, 0.6, 1.0, 2.0]), lo, hi)
-        rises = np.unique(np.concatenate([[np.clip(coef, 1.0, 150.0)], [3.0, 10.0, 25.0, 60.0]]))
-        return [{**params, "rise55_k": float(r), "tau_s": float(t)} for r in rises for t in np.unique(taus)]
+        # the first-order column saturates on a large rise and biases the screen's time constant,
+        # and rise and time constant trade off along a narrow valley: a grid of the exact law
+        taus = self.grid(sig, base)["tau_s"]
+        rises = (5.0, 12.0, 30.0, 70.0)
+        return [{**params, "rise55_k": r, "tau_s": float(t)} for r in rises for t in taus]
 
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
@@ -449,10 +457,11 @@ class SensorOffset(Word):
 #: The effect words, in the order the augmented model chains them.
 VOCABULARY: dict[str, Word] = {w.word: w for w in (
     AsymmetricHysteresis(
-        "asymmetric_hysteresis", "every play operator's descending threshold r widened to r (1 + a s) with the "
-        "input level s (generalized PI), the PI refitted with it",
+        "asymmetric_hysteresis", "every play operator's descending threshold r widened to r (1 + a s) + c s with "
+        "the input level s (generalized PI), the PI refitted with it",
         {"extra_width": "relative (1 = twice as wide) at full flow",
-         "lift_pct": "% duty (descending thresholds at the top of the range, first order)"},
+         "widen": "relative widening of each descending threshold at the top (a)",
+         "lift_pct": "% duty (lift of every descending threshold at the top, c)"},
         {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds"),
     CoilHeating(
         "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T, or the measured coil_temp_c; effective duty = "
@@ -461,7 +470,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
          "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K",
          "ambient_c": "deg C"},
         {"rise55_k": (0.05, 250.0), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
-        joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty"),
+        joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty",
+        ratio_of={"rise55_k": "tau_s"}),
     SupplyPressure(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
         "to first order, the PI refitted with it",
