@@ -18,7 +18,7 @@ state from the duty history), the supply pressure column is kept.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 

@@ -93,11 +93,13 @@ def test_thermal_fit_recovers_the_heating_law_from_a_measured_temperature():
 def test_closed_loop_recording_keeps_its_longest_running_stretch():
     n = 100
     state = ["safe"] * 10 + ["running"] * 30 + ["fault"] * 5 + ["running"] * 50 + ["safe"] * 5
-    rec = Recording("<run>", {"t_s": np.arange(n) / 10.0, "duty_pct": np.full(n, 50.0), "flow_lpm": np.ones(n)},
-                    {"state": state})
-    rec.columns["duty_pct"][:10] = 3.0  # the safe duty before the run
+    duty = np.r_[np.full(10, 3.0), np.arange(10.0, 100.0)]  # the safe duty before the run
+    rec = Recording("<run>", {"t_s": np.arange(n) / 10.0, "duty_pct": duty, "flow_lpm": 2 * duty}, {"state": state})
     cut, rest = running_rows(rec)
-    assert len(cut) == 50 and cut.t_s[0] == pytest.approx(4.5) and rest == 3.0
+    assert rest == 3.0
+    # the longest stretch (rows 45-94), each duty paired with the flow the next step measured
+    assert len(cut) == 49 and cut.t_s[0] == pytest.approx(4.6)
+    np.testing.assert_array_equal(cut.flow_lpm, 2 * (cut.duty_pct + 1))
     plain = Recording("<open>", rec.columns)
     same, rest = running_rows(plain)
     assert same is plain and rest is None

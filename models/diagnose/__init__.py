@@ -41,7 +41,7 @@ from .folds import Folds, make_folds
 from .residuals import Location, locate, where
 from .signals import Signals, noise_lpm, raw_signals, running_rows, work_signals
 from .trace import UNCONFIRMED, Decision, explain
-from .words import DYNAMIC, VOCABULARY
+from .words import VOCABULARY
 
 
 @dataclass(frozen=True)

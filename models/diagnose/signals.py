@@ -109,7 +109,9 @@ def running_rows(rec: Recording) -> tuple[Recording, float | None]:
     In the safe or fault state the controller commands the safe duty and the flow it measures is
     not the loop's; the longest stretch keeps the hysteresis memory continuous. Before it the valve
     was at the safe duty (the lowest duty of the rows left out; DESIGN.md's default 0 % when the
-    run was running from its first row), which sets the memory the run starts with.
+    run was running from its first row), which sets the memory the run starts with. A loop step
+    reads the flow before it commands the duty, so each duty is paired with the next row's flow
+    (the stretch loses a row).
     """
     state = rec.text_columns.get("state")
     if state is None:
@@ -118,12 +120,17 @@ def running_rows(rec: Recording) -> tuple[Recording, float | None]:
     if not run.any():
         raise InputError(f"{rec.path}: column 'state': no row is 'running'")
     rest = float(np.min(rec.duty_pct[~run])) if (~run).any() else SAFE_DUTY_PCT
-    if run.all():
-        return rec, rest
     edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
     starts, stops = edges[::2], edges[1::2]
     k = int(np.argmax(stops - starts))
-    return rec.slice(int(starts[k]), int(stops[k])), rest
+    a, b = int(starts[k]), int(stops[k])
+    if b - a < 2:
+        raise InputError(f"{rec.path}: column 'state': fewer than two consecutive 'running' rows")
+    # a loop step reads the flow, then commands the duty: the valve's answer to a row's duty is
+    # the next row's flow, so each duty is paired with the flow measured after it
+    cols = {name: v[a + 1:b] for name, v in rec.columns.items()}
+    cols["duty_pct"] = rec.duty_pct[a:b - 1]
+    return Recording(rec.path, cols, {name: v[a + 1:b] for name, v in rec.text_columns.items()}), rest
 
 
 #: The controller's safe duty (DESIGN.md's default), where a closed-loop run's valve rests before it runs.
