@@ -19,6 +19,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from controller.commands.outputs import check_outputs
     from models.diagnose import diagnose_response
     from models.diagnose.report import write_json, write_predictions, write_report
     from models.model import load_model
