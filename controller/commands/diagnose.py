@@ -24,7 +24,6 @@ def run(args) -> int:
     from models.diagnose.report import write_json, write_predictions, write_report
     from models.model import load_model
     from models.recording import check_fittable, read_recording
-    from controller.commands.outputs import check_outputs
 
     check_outputs(args, files=("json", "predictions"))
     rec = read_recording(args.recording)
