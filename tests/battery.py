@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -578,10 +579,14 @@ def _materialize(case: Case, folder: str, root: str) -> list[str]:
             os.makedirs(path, exist_ok=True)
         elif isinstance(content, tuple):  # ("edit", find, replace[, base text])
             base = content[3] if len(content) > 3 else open(path, encoding="utf-8").read()
-            if content[1] not in base:
+            find = content[1]
+            if find not in base and "=" in find:  # the shipped value changed: find the key's line instead
+                m = re.search(rf"^\s*{re.escape(find.split('=')[0].strip())}\s*=[^\n#]*", base, re.M)
+                find = m.group(0) if m else find
+            if find not in base:
                 raise KeyError(f"{case.name}: {content[1]!r} not in {name}")
             with open(path, "w", encoding="utf-8") as fh:
-                fh.write(base.replace(content[1], content[2], 1))
+                fh.write(base.replace(find, content[2], 1))
         else:
             with open(path, "wb") as fh:
                 fh.write(content if isinstance(content, bytes) else content.encode("utf-8"))
