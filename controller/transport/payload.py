@@ -169,6 +169,6 @@ def parse_word(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:
     return Message(v, *_fields(obj))
 
 
-def encode(t_s: float, seq: int, value, **extra) -> bytes:
+def encode(t_s: float, seq: int, value, /, **extra) -> bytes:
     """The payload of a message (UTF-8 JSON; receivers reject any non-finite number in it)."""
     return json.dumps({"t": t_s, "seq": seq, "value": value, **extra}).encode()
