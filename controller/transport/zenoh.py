@@ -53,9 +53,14 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
     party connects to the controller's listen endpoints (or to ``[zenoh]
     connect`` when a router is configured there).
     """
+    from models.recording import InputError
+
     z = cfg["zenoh"]
     path = cfg.resolve(z["config"])
-    conf = zenoh.Config.from_file(path) if os.path.exists(path) else zenoh.Config()
+    try:
+        conf = zenoh.Config.from_file(path) if os.path.exists(path) else zenoh.Config()
+    except zenoh.ZError as exc:
+        raise InputError(f"{path}: not a Zenoh configuration ({str(exc).splitlines()[0][:120]})") from None
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     if role == "controller":
@@ -64,8 +69,13 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
     else:
         lis = [] if listen is None else listen
         con = (z["connect"] or z["listen"]) if connect is None else connect
-    conf.insert_json5("listen/endpoints", json.dumps(lis))
-    conf.insert_json5("connect/endpoints", json.dumps(con))
+    for key, eps, given in (("listen", lis, listen), ("connect", con, connect)):
+        try:
+            conf.insert_json5(f"{key}/endpoints", json.dumps(eps))
+        except zenoh.ZError:
+            where = f"--{key}" if given is not None else f"{cfg.path}: zenoh.{key}"
+            raise InputError(f"{where}: {eps} are not Zenoh endpoints (<protocol>/<address>, "
+                             f"e.g. tcp/127.0.0.1:7447)") from None
     if not os.path.exists(path):  # the retry settings of zenoh.json5, so any party may start first
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
