@@ -186,6 +186,9 @@ def fit_bouc_wen(x: np.ndarray, y: np.ndarray, starts: int = 6, seed: int = 0) -
     def residual(q, xs, ys):
         beta, gamma, n = shape(q)
         h, _, _ = _hysteretic(xs, xs[0], 0.0, beta, gamma, n, MAX_SUBSTEP)
+        if not np.isfinite(h).all():
+            # a shape whose state diverges on this input is no fit (and would break the SVD)
+            return np.full_like(ys, 1e3 * (np.ptp(ys) + 1.0))
         return _linear_part(xs, h, ys)[1]
 
     lo = np.log(SHAPE_BOUNDS[0]), np.log(SHAPE_BOUNDS[1])

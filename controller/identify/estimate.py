@@ -20,6 +20,7 @@ lag and delay behind them, so:
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -147,7 +148,12 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
             fit_mask[:first] = False
             fit_idx = np.flatnonzero(fit_mask)
             ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
-            model = fit_model(kind, t_s[fit_idx], x[fit_idx], ahead, source="identification")
+            try:
+                model = fit_model(kind, t_s[fit_idx], x[fit_idx], ahead, source="identification")
+            except (np.linalg.LinAlgError, ValueError) as e:
+                # one kind that cannot be fitted on this valve must not cost the whole identification
+                sys.stderr.write(f"identify: {kind} on the {name} duty not fitted: {e}\n")
+                continue
             pred = np.full(len(t_s), np.nan)
             pred[first:end] = predict_flow(model, x[first:end], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
             r = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
