@@ -148,7 +148,8 @@ class InversePIAsymParams(msgspec.Struct, forbid_unknown_fields=True):
 
 
 class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
-    """Kuhnen's modified PI: play part (``r``, ``w``, memory ``y0``), dead-zone superposition
+    """Modified PI: play part (``r``, ``w``, memory ``y0``, descending envelope ``a`` >= 0 and
+    ``p`` > 0 as in pi-asym; absent: ``a = 0``, Kuhnen's plays), dead-zone superposition
     (thresholds ``h`` ascending with one zero, weights ``g``), offset and closed flow ``floor``."""
 
     r: list[Threshold]
@@ -158,6 +159,8 @@ class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
     offset: Coefficient = 0.0
     floor: Finite = -MAX_FLOOR
     y0: list[Coefficient] | None = None
+    a: Annotated[float, msgspec.Meta(ge=0.0, le=LIMIT)] = 0.0
+    p: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.0
 
     def __post_init__(self):
         _same_length(self, ("r", "w"), ("y0",))

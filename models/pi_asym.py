@@ -80,7 +80,8 @@ def down_scale(x, a, p):
 
 
 @njit(cache=True)
-def _down_scales(x, a, p):
+def down_scales(x, a, p):
+    """:func:`down_scale` at every sample of ``x``."""
     out = np.empty(x.shape[0])
     for k in range(x.shape[0]):
         out[k] = down_scale(x[k], a, p)
@@ -179,7 +180,7 @@ class AsymmetricPIModel:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        y, s = play.play_weighted(self.r, self.w, x, state, _down_scales(x, self.a, self.p))
+        y, s = play.play_weighted(self.r, self.w, x, state, down_scales(x, self.a, self.p))
         return y + self.offset, s
 
     def response(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +188,7 @@ class AsymmetricPIModel:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        return play.play_response(self.r, x, state, _down_scales(x, self.a, self.p))
+        return play.play_response(self.r, x, state, down_scales(x, self.a, self.p))
 
     def slopes(self) -> tuple[np.ndarray, np.ndarray]:
         """Least output slopes with operators 0..j active: rising ``s_j``, falling (inputs within [-1, 1])."""
@@ -270,10 +271,10 @@ class InverseAsymmetricPI:
 def regressors(r: np.ndarray, a: float, p: float, x: np.ndarray) -> np.ndarray:
     """Operator outputs (N x m) for the fit, operators relaxed at ``x[0]``."""
     x = np.ascontiguousarray(x, dtype=np.float64)
-    return play.play_response(r, x, np.full(len(r), x[0]), _down_scales(x, a, p))[0]
+    return play.play_response(r, x, np.full(len(r), x[0]), down_scales(x, a, p))[0]
 
 
-def _design(r, a, p, x):
+def design(r, a, p, x):
     """Regressors in the partial-sum unknowns ``(s_1..s_m, c)``: column j is ``Y_j - Y_{j+1}``."""
     Y = regressors(r, a, p, x)
     Y[:, :-1] -= Y[:, 1:]
@@ -315,7 +316,7 @@ def falling_gain(r: np.ndarray, a: float, p: float) -> np.ndarray:
     return a * 0.5 * p * np.clip(1.0 - 0.5 * np.asarray(r, dtype=np.float64), 0.0, 1.0) ** (p - 1.0)
 
 
-def _falling_constraint(r, a, p):
+def falling_constraint(r, a, p):
     """Matrix G with ``G @ s`` = the least falling slopes ``s_j + falling_gain_j t_j`` (for t_j < 0)."""
     m = len(r)
     # t_j = sum_{i<=j} r_i (s_i - s_{i-1}) = r_j s_j - sum_{i<j} s_i (r_{i+1} - r_i)
@@ -328,7 +329,7 @@ def _fit_weights(R, c, e, r, a, p, min_slope):
     """Constrained least squares for ``(s, c)``: rising and falling slopes >= ``min_slope``."""
     m = len(r)
     theta, _ = _fit_bounded(R, c, e, min_slope)
-    G = _falling_constraint(r, a, p)
+    G = falling_constraint(r, a, p)
     if np.all(G @ theta[:m] >= min_slope * (1 - 1e-9)):
         return theta  # optimal for the larger feasible set, so here too
     C = np.zeros((2 * m, m + 1))
@@ -395,7 +396,7 @@ def fit_pi_asym(
 
     def cost(ap):
         a, p = np.clip(ap, (A_BOUNDS[0], P_BOUNDS[0]), (A_BOUNDS[1], P_BOUNDS[1]))
-        return _fit_bounded(*_compressed(_design(r, a, p, x), y), min_slope)[1]
+        return _fit_bounded(*_compressed(design(r, a, p, x), y), min_slope)[1]
 
     if envelope is None:
         grid = [(a, p) for a in (0.0, 1.0, 4.0, 12.0) for p in (1.0, 2.5, 5.0)]
@@ -407,7 +408,7 @@ def fit_pi_asym(
             a, p = start
     else:
         a, p = envelope
-    theta = _fit_weights(*_compressed(_design(r, a, p, x), y), r, a, p, min_slope)
+    theta = _fit_weights(*_compressed(design(r, a, p, x), y), r, a, p, min_slope)
     w = np.diff(theta[: len(r)], prepend=0.0)
     return AsymmetricPIModel(r=r, w=w, a=a, p=p, offset=theta[-1])
 

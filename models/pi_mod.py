@@ -1,4 +1,4 @@
-"""The modified Prandtl-Ishlinskii model of Kuhnen: the PI family's model for real valves.
+"""The modified Prandtl-Ishlinskii model: the PI family's model for real valves.
 
 Model followed: K. Kuhnen (2003), "Modeling, identification and compensation
 of complex hysteretic nonlinearities: a modified Prandtl-Ishlinskii
@@ -17,13 +17,24 @@ cracking duty the flow stays at zero (a segment of almost no slope at the
 bottom) and at full opening it saturates (one at the top), neither of which
 the PI's central symmetry can follow.
 
-Invertibility (Kuhnen): every loading slope of the PI (partial sums of
-``w``, zero first threshold) and every segment slope of ``S`` positive. The
-inverse is then again of the same form, in closed form: the inverse PI of
-Eq. (5)-(7) after ``S^{-1}``, which is a superposition of one-sided dead
-zones with thresholds ``h_i' = S(h_i)`` and weights
-``g_0' = 1/g_0``, ``g_i' = -g_i / (sigma_i sigma_{i-1})`` (sigma: the partial
-sums; Eq. 7's second line on the output axis). So
+The plays may be the generalized operators of Al Janaideh, Rakheja & Su
+(2009), as in :mod:`models.pi_asym`: every descending threshold ``r_i (1 + a
+psi(x))`` widens with the input level. ``S`` acts on the output only, so it
+cannot make the loop's width in duty vary with the level; the envelope can,
+and the bench valve's descending branch is wider at high flow (bench
+validation RMSE: Kuhnen's form 2.13 L/min, pi-asym 0.89, this one 0.81).
+With ``a = 0`` (the default, and every model file without ``a``) the model
+is Kuhnen's; with ``S`` the identity it is the asymmetric PI.
+
+Invertibility: every rising and falling slope of the plays positive
+(Kuhnen's loading slopes when ``a = 0``; :mod:`models.pi_asym` otherwise) and
+every segment slope of ``S`` positive. ``S^{-1}`` is again a superposition of
+one-sided dead zones, in closed form (Kuhnen): thresholds ``h_i' = S(h_i)``,
+weights ``g_0' = 1/g_0``, ``g_i' = -g_i / (sigma_i sigma_{i-1})`` (sigma: the
+partial sums; Eq. 7's second line on the output axis). The plays' inverse is
+the inverse PI of Eq. (5)-(7) when ``a = 0``, and otherwise the one input
+whose generalized plays give ``S^{-1}[Q - c]``, found by bisection to
+rounding (the output is strictly increasing in each sample's input). So
 ``forward(inverse(Q)) == Q`` and ``inverse(forward(x)) == x`` to rounding.
 
 Inside the dead zone every duty below cracking gives (nearly) no flow: the
@@ -32,12 +43,15 @@ returns the duty at which the modelled flow reaches zero on the present
 branch, the cracking duty of the valve's present memory (what a feedforward
 does with it is in :mod:`controller.laws.feedforward`).
 
-Fit: output-error least squares on the preprocessed recording, in the PI's
-partial sums and the segment slopes of ``S`` (all bounded below by a small
-positive slope, the middle one fixed at 1 since the PI's gain can take it),
-and the offset; started from the constrained PI fit (``S`` the identity) and
-solved with bounds (``scipy.optimize.least_squares``, trust region
-reflective) with the exact Jacobian.
+Fit (:func:`fit_pi_mod`): output-error least squares on the preprocessed
+recording, in the plays' partial sums and the segment slopes of ``S`` (all
+bounded below by a small positive slope, the middle one fixed at 1 since
+the plays' gain can take it; falling slopes held by penalty rows), and the
+offset, with the exact Jacobian (``scipy.optimize.least_squares``, trust
+region reflective), from two starts: Kuhnen's (the constrained PI, ``S`` the
+identity) and the asymmetric PI's (its envelope searched, then held). The
+invertible candidate with the least in-sample error is kept, the starts
+included, so it is never worse in sample than either.
 """
 from __future__ import annotations
 
@@ -50,8 +64,9 @@ from scipy.optimize import least_squares
 
 from . import inverse_pi, play
 from .inverse_pi import invert_pi
-from .pi import MIN_SLOPE, PIModel, fit_weights, regressors, thresholds
-from .pi_asym import InverseAsymmetricPI
+from .pi import MIN_SLOPE, PIModel, fit_pi
+from .pi_asym import (AsymmetricPIModel, InverseAsymmetricPI, design, down_scale, down_scales, falling_constraint,
+                      fit_pi_asym, solve_input)
 
 #: One-sided dead-zone operators on each side of the origin (Kuhnen's output superposition).
 N_DEAD_ZONE = 6
@@ -127,7 +142,7 @@ def dead_zone_thresholds(p_min: float, p_max: float, k: int = N_DEAD_ZONE) -> np
 
 @dataclass(frozen=True, eq=False)
 class ModifiedPIModel:
-    """Kuhnen's modified PI in normalized units.
+    """The modified PI in normalized units (Kuhnen's when ``a = 0``).
 
     Attributes
     ----------
@@ -142,6 +157,9 @@ class ModifiedPIModel:
         closed valve; the lowest flow of the identification recording).
     y0 : ndarray, shape (m,)
         Play memory before the first sample (Eq. 3); NaN: at rest at the first input.
+    a, p : float
+        Descending envelope of the plays (:mod:`models.pi_asym`): every descending threshold
+        is ``r_i (1 + a psi(x))``; ``a = 0`` (the default): Eq. (1), Kuhnen's model.
     """
 
     r: np.ndarray
@@ -151,6 +169,8 @@ class ModifiedPIModel:
     offset: float = 0.0
     floor: float = -np.inf
     y0: np.ndarray = field(default=None)
+    a: float = 0.0
+    p: float = 1.0
     kind: ClassVar[str] = "pi-mod"
 
     def __post_init__(self):
@@ -158,36 +178,47 @@ class ModifiedPIModel:
             object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
         y0 = np.full_like(self.r, np.nan) if self.y0 is None else np.asarray(self.y0, dtype=np.float64)
         object.__setattr__(self, "y0", y0)
-        object.__setattr__(self, "offset", float(self.offset))
-        object.__setattr__(self, "floor", float(self.floor))
+        for name in ("offset", "floor", "a", "p"):
+            object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
     def pi(self) -> PIModel:
-        """The play part alone (no offset): ``p = w^T H_r[x]``."""
+        """The play part alone (no offset) when it is Eq. (1)'s (``a = 0``): ``p = w^T H_r[x]``."""
         return PIModel(self.r, self.w, 0.0, self.y0)
+
+    @property
+    def plays(self) -> AsymmetricPIModel:
+        """The play part alone (no offset), generalized operators (``a = 0``: Eq. 1)."""
+        return AsymmetricPIModel(self.r, self.w, self.a, self.p, 0.0)
+
+    @property
+    def exact(self) -> bool:
+        """The inverse is in closed form (Eq. 1 plays, ``a = 0``); else solved per sample to rounding."""
+        return self.a == 0.0
 
     def init(self, x0: float) -> np.ndarray:
         """Play operator states at the first sample, Eq. (3)."""
         return play.init(self.r, x0, self.y0)
 
     def step(self, state: np.ndarray, x: float) -> tuple[np.ndarray, float]:
-        """One sample: Eq. (1), Eq. (4), then ``S`` and the offset."""
+        """One sample: Eq. (1) (generalized when ``a > 0``), Eq. (4), then ``S`` and the offset."""
         s = np.array(state, dtype=np.float64)
-        p = play.bank_step(self.r, self.w, 1.0, s, float(x))
+        p = play.bank_step(self.r, self.w, down_scale(float(x), self.a, self.p), s, float(x))
         return s, max(dead_zone(self.h, self.g, p) + self.offset, self.floor)
 
     def predict(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Output over an input sequence; ``(y, final_state)``."""
-        x = np.asarray(x, dtype=np.float64)
+        x = np.ascontiguousarray(x, dtype=np.float64)
         if state is None:
             state = self.init(x[0])
-        p, s = play.play_weighted(self.r, self.w, x, state)
+        p, s = play.play_weighted(self.r, self.w, x, state, down_scales(x, self.a, self.p))
         return np.maximum(apply_dead_zone(self.h, self.g, p) + self.offset, self.floor), s
 
     @property
     def invertible(self) -> bool:
-        """Kuhnen's conditions: the PI part invertible and every segment slope of ``S`` positive."""
-        return self.pi.invertible and bool(np.all(segment_slopes(self.h, self.g) > 0))
+        """Every rising and falling slope of the plays positive (Kuhnen's loading slopes when
+        ``a = 0``) and every segment slope of ``S`` positive."""
+        return self.plays.invertible and bool(np.all(segment_slopes(self.h, self.g) > 0))
 
     def inverse(self) -> "InverseModifiedPI":
         """The closed-form inverse (output to input)."""
@@ -198,34 +229,45 @@ class ModifiedPIModel:
     def to_params(self) -> dict:
         y0 = None if np.all(np.isnan(self.y0)) else self.y0.tolist()
         return {"r": self.r.tolist(), "w": self.w.tolist(), "h": self.h.tolist(), "g": self.g.tolist(),
-                "offset": self.offset, "floor": self.floor, "y0": y0}
+                "offset": self.offset, "floor": self.floor, "y0": y0, "a": self.a, "p": self.p}
 
     @classmethod
     def from_params(cls, d: dict) -> "ModifiedPIModel":
-        return cls(r=d["r"], w=d["w"], h=d["h"], g=d["g"], offset=d["offset"], floor=d["floor"], y0=d.get("y0"))
+        return cls(r=d["r"], w=d["w"], h=d["h"], g=d["g"], offset=d["offset"], floor=d["floor"], y0=d.get("y0"),
+                   a=d.get("a", 0.0), p=d.get("p", 1.0))
 
 
 @njit(cache=True, inline="always")
-def solve(r, w, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, fwd_state, work, q):
+def solve(r, w, a, p, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, exact, fwd_state, work, q):
     """The input that takes the forward play memory ``fwd_state`` to output ``q`` (memory unchanged).
 
-    ``x = Gamma^{-1}[S^{-1}[q - c]]`` in closed form (Eq. 7 from the forward memory, then
-    Eq. 5-6); a closed valve (``q <= closed``) gives ``x_closed``. With ``h_inv = [0]``,
-    ``g_inv = [1]`` and ``closed = -inf`` it is the plain PI's inverse.
+    ``x = Gamma^{-1}[S^{-1}[q - c]]``: ``S^{-1}`` in closed form (Kuhnen), then the plays'
+    inverse, in closed form when ``exact`` (Eq. 7 from the forward memory, then Eq. 5-6;
+    ``a = 0``), else the one input whose generalized plays give it, by bisection to rounding
+    (:func:`models.pi_asym.solve_input`). A closed valve (``q <= closed``) gives ``x_closed``.
+    With ``h_inv = [0]``, ``g_inv = [1]`` and ``closed = -inf`` it is the plain PI's inverse
+    (``exact``) or the asymmetric PI's (not).
     """
     if q <= closed:
         return x_closed
-    return inverse_pi.solve(r, w, r_inv, w_inv, fwd_state, work, dead_zone(h_inv, g_inv, q - offset))
+    z = dead_zone(h_inv, g_inv, q - offset)
+    if exact:
+        return inverse_pi.solve(r, w, r_inv, w_inv, fwd_state, work, z)
+    # any state lies within the bands of the input that made it: start the search at their mean
+    guess = 0.0
+    for i in range(fwd_state.shape[0]):
+        guess += fwd_state[i]
+    return solve_input(r, w, a, p, fwd_state, z, guess / fwd_state.shape[0])
 
 
 @njit(cache=True)
-def _invert(r, w, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, q, fwd_state):
+def _invert(r, w, a, p, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, exact, q, fwd_state):
     out = np.empty(q.shape[0])
     s = fwd_state.copy()
     work = np.empty(r.shape[0])
     for k in range(q.shape[0]):
-        x = solve(r, w, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, s, work, q[k])
-        play.bank_step(r, w, 1.0, s, x)  # the forward memory follows the input found
+        x = solve(r, w, a, p, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, exact, s, work, q[k])
+        play.bank_step(r, w, down_scale(x, a, p), s, x)  # the forward memory follows the input found
         out[k] = x
     return out, s
 
@@ -234,9 +276,10 @@ def _invert(r, w, r_inv, w_inv, h_inv, g_inv, offset, closed, x_closed, q, fwd_s
 class InverseModifiedPI:
     """Inverse of a :class:`ModifiedPIModel`, output to input: ``x = Gamma^{-1}[S^{-1}[Q - c]]``.
 
-    The state is the forward play memory: each sample's input comes from it in
-    closed form (Eq. 7 for the inverse operators' memory, ``S^{-1}``, then
-    Eq. 5-6), and the memory then follows that input. Outputs above
+    The state is the forward play memory: each sample's input comes from it
+    (``S^{-1}`` in closed form, then Eq. 7 for the inverse operators' memory and
+    Eq. 5-6 when ``a = 0``, bisection through the generalized plays otherwise),
+    and the memory then follows that input. Outputs above
     :attr:`closed` are inverted exactly (``forward(inverse(Q)) == Q``); a closed
     valve (``Q <= closed``, where the model is nearly flat and any input below
     cracking fits) gives the bottom of the input range: the valve closed, the
@@ -248,9 +291,13 @@ class InverseModifiedPI:
 
     def __post_init__(self):
         f = self.forward
-        inv = invert_pi(f.pi)
+        if f.exact:
+            inv = invert_pi(f.pi)
+            r_inv, w_inv = inv.r, inv.w
+        else:  # solved per sample through the forward plays: no inverse operators
+            r_inv, w_inv = np.zeros_like(f.r), np.zeros_like(f.w)
         h_inv, g_inv = invert_dead_zone(f.h, f.g)
-        for name, v in (("r_inv", inv.r), ("w_inv", inv.w), ("h_inv", h_inv), ("g_inv", g_inv)):
+        for name, v in (("r_inv", r_inv), ("w_inv", w_inv), ("h_inv", h_inv), ("g_inv", g_inv)):
             object.__setattr__(self, name, np.ascontiguousarray(v))
 
     @property
@@ -280,8 +327,8 @@ class InverseModifiedPI:
         y = np.ascontiguousarray(y, dtype=np.float64)
         if state is None:
             state = self.init(y[0])
-        return _invert(f.r, f.w, self.r_inv, self.w_inv, self.h_inv, self.g_inv, f.offset, self.closed,
-                       self.x_closed, y, np.asarray(state, dtype=np.float64))
+        return _invert(f.r, f.w, f.a, f.p, self.r_inv, self.w_inv, self.h_inv, self.g_inv, f.offset, self.closed,
+                       self.x_closed, f.exact, y, np.asarray(state, dtype=np.float64))
 
     def to_params(self) -> dict:
         return {"forward": self.forward.to_params()}
@@ -329,9 +376,62 @@ def _slopes_to_weights(h: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return g
 
 
+def _refine(A, y, s0, c0, h, G, min_slope):
+    """Output-error least squares of ``(s, sigma, c)`` from the plays' partial sums ``s0`` and offset
+    ``c0`` with ``S`` the identity; ``(s, sigma, c, squared error)``.
+
+    ``A``: the plays' regressors in the partial sums; ``h``: the dead-zone thresholds (middle
+    one zero). Rising slopes ``s`` and segment slopes ``sigma`` are bounds (>= ``min_slope``);
+    the falling slopes ``G @ s`` of generalized plays (None: Eq. 1 plays, they are ``s``) are
+    held above ``2 min_slope`` by penalty rows, stiff enough that the result stays above
+    ``min_slope`` (checked by the caller).
+    """
+    m, k = A.shape[1], (len(h) - 1) // 2
+    free = np.r_[0:k, k + 1:2 * k + 1]  # the middle slope is fixed at 1: the plays' gain takes it
+    floor = float(np.min(y))
+    stiff = 10.0 * np.sqrt(len(y))
+
+    def unpack(theta):
+        sigma = np.ones(2 * k + 1)
+        sigma[free] = theta[m:m + 2 * k]
+        return theta[:m], sigma, theta[-1]
+
+    def residual(theta):
+        s, sigma, c = unpack(theta)
+        out = np.maximum(_segment_basis(h, A @ s) @ sigma + c, floor) - y
+        if G is None:
+            return out
+        return np.concatenate([out, stiff * np.minimum(G @ s - 2.0 * min_slope, 0.0)])
+
+    def jac(theta):
+        s, sigma, c = unpack(theta)
+        p = A @ s
+        phi = _segment_basis(h, p)
+        live = (phi @ sigma + c > floor)[:, None]  # rows at the floor do not move with the parameters
+        J = np.column_stack([A * _local_slope(h, sigma, p)[:, None], phi[:, free], np.ones(len(p))]) * live
+        if G is None:
+            return J
+        pen = np.zeros((m, J.shape[1]))
+        pen[:, :m] = stiff * G * (G @ s < 2.0 * min_slope)[:, None]
+        return np.vstack([J, pen])
+
+    lb = np.concatenate([np.full(m + 2 * k, min_slope), [-np.inf]])
+    theta0 = np.maximum(np.concatenate([s0, np.ones(2 * k), [c0]]), lb + min_slope * 1e-3)  # strictly inside
+    res = least_squares(residual, theta0, jac=jac, bounds=(lb, np.full(len(lb), np.inf)), method="trf",
+                        x_scale="jac", max_nfev=200)
+    s, sigma, c = unpack(res.x)
+    return s, sigma, c, float(np.sum(residual(res.x)[:len(y)] ** 2))
+
+
 def fit_pi_mod(x: np.ndarray, y: np.ndarray, n: int = 50, k: int = N_DEAD_ZONE,
-               min_slope: float = MIN_SLOPE) -> ModifiedPIModel:
-    """Fit the play weights, the dead-zone superposition and the offset (see the module docstring).
+               min_slope: float = MIN_SLOPE, envelope: tuple[float, float] | None = None) -> ModifiedPIModel:
+    """Fit the plays, the dead-zone superposition and the offset (see the module docstring).
+
+    Two starts, each refined by :func:`_refine` with its envelope held: Kuhnen's (``a = 0``,
+    the constrained PI of :func:`models.pi.fit_pi`) and the asymmetric PI's (envelope searched
+    by :func:`models.pi_asym.fit_pi_asym`). The invertible result with the least in-sample
+    squared error is kept, the starts themselves (``S`` the identity) among the candidates,
+    so the fit is never worse in sample than either the PI or the asymmetric PI.
 
     Parameters
     ----------
@@ -342,46 +442,37 @@ def fit_pi_mod(x: np.ndarray, y: np.ndarray, n: int = 50, k: int = N_DEAD_ZONE,
     k : int
         Dead-zone operators on each side of the origin.
     min_slope : float
-        Lower bound on every loading slope and every dead-zone segment slope.
+        Lower bound on every rising, falling and dead-zone segment slope.
+    envelope : (a, p), optional
+        Hold the plays' descending envelope (``(0, 1)``: Kuhnen's model alone) instead of
+        trying both starts.
     """
-    x = np.asarray(x, dtype=np.float64)
+    x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    r = thresholds(n, x_max=float(np.max(np.abs(x))))
-    Y = regressors(r, x)
-    w0, c0, _ = fit_weights(Y, y, min_slope=min_slope)
-    A = Y.copy()
-    A[:, :-1] -= Y[:, 1:]  # columns in the partial sums (loading slopes), as in models.pi.fit_weights
-    s0 = np.cumsum(w0)
-    p0 = A @ s0
-    h = dead_zone_thresholds(min(float(p0.min()), -1e-3), max(float(p0.max()), 1e-3), k)
-    i0 = k
-    m = len(r)
-    free = np.r_[0:i0, i0 + 1:2 * k + 1]  # the middle slope is fixed at 1
-
-    def unpack(theta):
-        sigma = np.ones(2 * k + 1)
-        sigma[free] = theta[m:m + 2 * k]
-        return theta[:m], sigma, theta[-1]
-
     floor = float(np.min(y))
-
-    def residual(theta):
-        s, sigma, c = unpack(theta)
-        return np.maximum(_segment_basis(h, A @ s) @ sigma + c, floor) - y
-
-    def jac(theta):
-        s, sigma, c = unpack(theta)
-        p = A @ s
-        phi = _segment_basis(h, p)
-        live = (phi @ sigma + c > floor)[:, None]  # rows at the floor do not move with the parameters
-        return np.column_stack([A * _local_slope(h, sigma, p)[:, None], phi[:, free], np.ones(len(p))]) * live
-
-    lb = np.concatenate([np.full(m + 2 * k, min_slope), [-np.inf]])
-    theta0 = np.maximum(np.concatenate([s0, np.ones(2 * k), [c0]]), lb + min_slope * 1e-3)  # strictly inside
-    res = least_squares(residual, theta0, jac=jac, bounds=(lb, np.full(len(lb), np.inf)), method="trf",
-                        x_scale="jac", max_nfev=200)
-    s, sigma, c = unpack(res.x)
-    return ModifiedPIModel(r=r, w=np.diff(s, prepend=0.0), h=h, g=_slopes_to_weights(h, sigma), offset=c, floor=floor)
+    if envelope is None or tuple(envelope) == (0.0, 1.0):
+        pi = fit_pi(x, y, n=n, min_slope=min_slope)
+        starts = [(pi.r, pi.w, 0.0, 1.0, pi.offset)]
+    else:
+        starts = []
+    if envelope is None or tuple(envelope) != (0.0, 1.0):
+        asym = fit_pi_asym(x, y, n=n, min_slope=min_slope, envelope=envelope)
+        starts.append((asym.r, asym.w, asym.a, asym.p, asym.offset))
+    best, best_sse = None, np.inf
+    for r, w, a, p, c0 in starts:
+        A = design(r, a, p, x)[:, :-1]  # columns in the partial sums (loading slopes)
+        s0 = np.cumsum(w)
+        p0 = A @ s0
+        h = dead_zone_thresholds(min(float(p0.min()), -1e-3), max(float(p0.max()), 1e-3), k)
+        G = falling_constraint(r, a, p) if a > 0.0 else None
+        s, sigma, c, sse = _refine(A, y, s0, c0, h, G, min_slope)
+        identity = ModifiedPIModel(r=r, w=w, h=np.zeros(1), g=np.ones(1), offset=c0, floor=floor, a=a, p=p)
+        refined = ModifiedPIModel(r=r, w=np.diff(s, prepend=0.0), h=h, g=_slopes_to_weights(h, sigma), offset=c,
+                                  floor=floor, a=a, p=p)
+        for model, err in ((refined, sse), (identity, float(np.sum((identity.predict(x)[0] - y) ** 2)))):
+            if err < best_sse and model.invertible:
+                best, best_sse = model, err
+    return best
 
 
 def fit_core(x: np.ndarray, y: np.ndarray, rate_hz: float, n: int | None = None) -> ModifiedPIModel:

@@ -285,7 +285,7 @@ def _pack(p: PlantParams, rate_hz: float) -> np.ndarray:
     core = p.model.core
     v[K.OFF] = core.c if core.kind == "bouc-wen" else core.offset
     v[K.KIND], v[K.NM], v[K.NK] = _model_arrays(core)[:3]
-    v[K.A_ENV], v[K.P_ENV] = (core.a, core.p) if core.kind == "pi-asym" else (0.0, 1.0)
+    v[K.A_ENV], v[K.P_ENV] = (core.a, core.p) if core.kind in ("pi-asym", "pi-mod") else (0.0, 1.0)
     v[K.FLOOR] = getattr(core, "floor", -np.inf)
     v[K.GAIN_LO] = ys.half_range / xs.half_range
     core = p.model.core

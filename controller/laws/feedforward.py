@@ -2,12 +2,12 @@
 
 A :class:`ModelBank` holds, per candidate, an invertible hysteresis model in
 physical units, taken from a model file (:func:`models.model.load_model`) of
-any invertible kind: ``pi`` (Eq. 1-4 forward, Eq. 5-7 inverse), ``pi-mod``
-(Kuhnen's modified PI: the same play operators, then a dead-zone
-superposition; inverse in closed form, :mod:`models.pi_mod`) or ``pi-asym``
+any invertible kind: ``pi`` (Eq. 1-4 forward, Eq. 5-7 inverse), ``pi-asym``
 (generalized play operators; inverse solved per sample to rounding,
-:mod:`models.pi_asym`). Every kind runs the one play operator of
-:mod:`models.play`.
+:mod:`models.pi_asym`) or ``pi-mod`` (either play operators, then a
+dead-zone superposition inverted in closed form; the plays' inverse as
+above, :mod:`models.pi_mod`). Every kind runs the one play operator of
+:mod:`models.play` and the one inverse of :func:`models.pi_mod.solve`.
 
 Interface (what the control laws call; arrays of shape (B,)):
 
@@ -46,7 +46,8 @@ from numba import njit
 from models import pi_asym, pi_mod, play
 from models.model import FittedModel
 
-#: Kinds the feedforward inverts, and how: closed form (Eq. 7 family) or solved per sample.
+#: Kinds the feedforward inverts, and how: closed form (Eq. 7 family) or solved per sample
+#: (a ``pi-mod`` with generalized plays, ``a > 0``, is solved per sample too).
 INVERTIBLE = {"pi": 0, "pi-mod": 0, "pi-asym": 1}
 #: Default gap between the ready duty and the cracking duty, %.
 READY_MARGIN_PCT = 2.0
@@ -59,11 +60,12 @@ class ModelBank:
     Attributes
     ----------
     method : ndarray of int, shape (B,)
-        0: closed-form inverse (``pi``, ``pi-mod``); 1: solved per sample (``pi-asym``).
+        0: closed-form inverse (``pi``, ``pi-mod`` with ``a = 0``); 1: solved per sample (``pi-asym``,
+        ``pi-mod`` with ``a > 0``).
     r, w : ndarray, shape (B, n)
         Play thresholds and weights (Eq. 2, Eq. 4).
     a, p : ndarray, shape (B,)
-        Descending-threshold envelope of ``pi-asym`` (``a = 0``: Eq. 1).
+        Descending-threshold envelope of ``pi-asym`` and ``pi-mod`` (``a = 0``: Eq. 1).
     h, g : ndarray, shape (B, k)
         Dead-zone superposition on the play output (``pi-mod``; ``[0], [1]``: identity).
     offset, floor : ndarray, shape (B,)
@@ -124,6 +126,7 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
     a, p, floor, closed = 0.0, 1.0, -np.inf, -np.inf
     h, g, h_inv, g_inv = ident_h, ident_g, ident_h, ident_g
     r_inv, w_inv, x0 = np.zeros(n), np.zeros(n), np.full(n, np.nan)
+    method = INVERTIBLE[model.kind]
     if model.kind == "pi-asym":
         a, p = core.a, core.p
     else:
@@ -133,7 +136,8 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
             r_inv, w_inv = inv.r, inv.w
         else:
             r_inv, w_inv, h_inv, g_inv = inv.r_inv, inv.w_inv, inv.h_inv, inv.g_inv
-            h, g, floor, closed = core.h, core.g, core.floor, inv.closed
+            h, g, floor, closed, a, p = core.h, core.g, core.floor, inv.closed, core.a, core.p
+            method = 0 if core.exact else 1
 
     def rows(v):
         return np.tile(np.asarray(v, dtype=np.float64), (batch, 1))
@@ -143,7 +147,7 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
 
     xs, ys = model.x_scale, model.y_scale
     return ModelBank(
-        method=np.full(batch, INVERTIBLE[model.kind], dtype=np.int64), r=rows(core.r), w=rows(core.w),
+        method=np.full(batch, method, dtype=np.int64), r=rows(core.r), w=rows(core.w),
         a=col(a), p=col(p), h=rows(h), g=rows(g), offset=col(core.offset), floor=col(floor),
         r_inv=rows(r_inv), w_inv=rows(w_inv), h_inv=rows(h_inv), g_inv=rows(g_inv), closed=col(closed),
         x0=rows(x0), duty_center=col(xs.center), duty_half=col(xs.half_range), flow_center=col(ys.center),
@@ -182,14 +186,8 @@ def _solve(bk, j, state, work, q, closed):
     (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, _, x0,
      dc, dh, fc, fh, margin) = bk
     t = min(max((q - fc[j]) / fh[j], -1.0), 1.0)  # the model's flow range; above it: saturated
-    if method[j] == 1:
-        guess = 0.0
-        for i in range(state.shape[0]):
-            guess += state[i]
-        u = pi_asym.solve_input(r[j], w[j], a[j], p[j], state, t - offset[j], guess / state.shape[0])
-    else:
-        u = pi_mod.solve(r[j], w[j], r_inv[j], w_inv[j], h_inv[j], g_inv[j], offset[j], closed, -1.0,
-                         state, work, t)
+    u = pi_mod.solve(r[j], w[j], a[j], p[j], r_inv[j], w_inv[j], h_inv[j], g_inv[j], offset[j], closed, -1.0,
+                     method[j] == 0, state, work, t)
     u = min(u, 1.0)
     below = min(q - (fc[j] - fh[j]), 0.0)  # below the flow range: the range's average gain
     return u * dh[j] + dc[j] + dh[j] / fh[j] * below
