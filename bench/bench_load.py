@@ -9,18 +9,23 @@ Cases, each a `valvectl run --plant zenoh` against a `valvectl valve-node` for D
 * ``hogs, loop FIFO + io FIFO``: Zenoh's I/O threads under SCHED_FIFO too, below the loops
   (``[zenoh] io_priority = 10``, shipped);
 * ``hogs, loop FIFO + io nice``: Zenoh's I/O threads at nice -20 instead (``[zenoh] io_nice``);
-* with ``--flood``: a Zenoh reference at 100 Hz and a flood on ``ref/flow`` or ``meas/flow``
-  (1 MB payloads as fast as Python publishes, small ones as fast as it publishes, 10 kHz),
-  with Zenoh's threads under FIFO or at nice -20, no hogs.
+* with ``--flood``: a Zenoh reference at 100 Hz and a flood on one key, the shipped measures, no
+  hogs: ``ref/flow``, ``meas/flow``, ``ctrl/mode``, ``meas/supply`` (the controller's keys) and
+  ``cmd/duty`` (the valve node's, the flooder connected to the node), each with 1 MB payloads as
+  fast as Python publishes, small ones as fast as it publishes, and small ones at 10 kHz. The
+  rate and longest step are then those of the flooded process.
 
-Hogs: per core, one pure-Python spin and one numpy matrix product (compute and memory traffic).
+Hogs: per core, a pure-Python spin, then a numpy matrix product (compute and memory traffic),
+alternating; each under the normal scheduler at nice 0 (set explicitly and checked, whatever
+the bench runs under), as are the controller and the node before they raise their own threads.
 Printed per case: controller steps, overruns (and their share), stale faults during the run,
 valve-node steps, commands received per node step, command timeouts, round trip p50/p99 (node
 side: measurement published -> the command computed from it received). The node is stopped
 just before the controller's last step so that neither sees the other's end as a fault; stale
-faults are counted from the controller's recording (running -> safe transitions).
+faults are counted from the controller's recording (running -> safe transitions). The load
+average before and after is printed: other work on the machine shows there.
 
-Usage: ``nice -n 10 .venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 2]``.
+Usage: ``.venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 1] [--flood]``.
 Needs root (or CAP_SYS_NICE) for SCHED_FIFO; without it the FIFO cases run under the normal
 scheduler (the processes say so) and the comparison shows nothing.
 """
@@ -39,10 +44,12 @@ import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-#: Flooders (a Zenoh peer connected to the controller): valid references at 100 Hz and a flood on KEY.
+#: Flooders (a Zenoh peer connected to the flooded process): valid references at 100 Hz when REF, and a flood on
+#: KEY. Small payloads are well formed; on cmd/duty their value is out of range (counted, not obeyed), on ctrl/mode
+#: not a controller word.
 FLOOD = """
 import json, sys, time, zenoh
-ep, key, kind, seconds = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4])
+ep, key, kind, seconds, with_ref = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5] == "ref"
 c = zenoh.Config()
 c.insert_json5("mode", '"peer"'); c.insert_json5("scouting/multicast/enabled", "false")
 c.insert_json5("connect/endpoints", json.dumps([ep])); c.insert_json5("connect/timeout_ms", "-1")
@@ -50,20 +57,20 @@ c.insert_json5("connect/exit_on_failure", "false")
 s = zenoh.open(c)
 ref, pub = s.declare_publisher("vent/valve/insp/ref/flow"), s.declare_publisher("vent/valve/insp/" + key)
 big = b'{"value": 1, "pad": "' + b"x" * 2 ** 20 + b'"}'
+value = {"cmd/duty": 500.0, "ctrl/mode": "no-such-law"}.get(key, 50.0)
 t0 = time.monotonic(); k = 0; next_ref = t0
 while time.monotonic() - t0 < seconds:
     now = time.monotonic()
-    if now >= next_ref:
+    if with_ref and now >= next_ref:
         ref.put(json.dumps({"t": now - t0, "seq": k, "value": 40.0 + 20.0 * (int(now - t0) % 2)}).encode())
         next_ref += 0.01
     if kind == "1MB":
         pub.put(big)
-    elif kind == "max":
-        pub.put(json.dumps({"t": now - t0, "seq": 10 ** 9 + k, "value": 50.0}).encode())
-    else:  # 10 kHz
-        pub.put(json.dumps({"t": now - t0, "seq": 10 ** 9 + k, "value": 50.0}).encode())
-        while time.monotonic() < t0 + k * 1e-4:
-            pass
+    else:
+        pub.put(json.dumps({"t": now - t0, "seq": 10 ** 9 + k, "value": value}).encode())
+        if kind == "10kHz":
+            while time.monotonic() < t0 + k * 1e-4:
+                pass
     k += 1
 """
 HOGS = {
@@ -122,25 +129,65 @@ def stale_during(rec: str, end_s: float) -> int:
     return n
 
 
+def normal() -> None:
+    """In a child before exec: the normal scheduler at nice 0, whatever the bench runs under (nice, FIFO)."""
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    os.setpriority(os.PRIO_PROCESS, 0, 0)
+
+
+def scheduling(pid: int) -> tuple[int, int]:
+    """(policy, nice) of process ``pid``, from /proc (fields 41 and 19 of stat)."""
+    st = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return int(st[38]), int(st[16])
+
+
+def foreign_realtime() -> list[str]:
+    """User processes outside this bench with a real-time thread (another 1 kHz loop shares the cores)."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                cmd = fh.read().split(b"\0")[:4]
+            ppid = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[1])
+            if not cmd[0] or int(pid) == os.getpid() or ppid == os.getpid():
+                continue  # kernel threads have no command line
+            if any(scheduling_task(f"/proc/{pid}/task/{t}") in (os.SCHED_FIFO, os.SCHED_RR)
+                   for t in os.listdir(f"/proc/{pid}/task")):
+                found.append(f"{pid} {b' '.join(cmd).decode(errors='replace')[:80]}")
+        except (OSError, ValueError, IndexError):
+            continue  # gone meanwhile
+    return found
+
+
+def scheduling_task(task_dir: str) -> int:
+    return int(open(f"{task_dir}/stat").read().rsplit(")", 1)[1].split()[38])
+
+
 def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=None) -> dict:
     cfg = config(*sched)
-    ep = f"tcp/127.0.0.1:{free_port()}"
+    ep, node_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
     rec, summ, nj = (os.path.join(tmp, f"{name}.{x}") for x in ("csv", "s.json", "n.json"))
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    hog_procs = [subprocess.Popen([sys.executable, "-c", HOGS[list(HOGS)[i % len(HOGS)]]], env=env)
+    start = dict(env=env, preexec_fn=normal)
+    hog_procs = [subprocess.Popen([sys.executable, "-c", HOGS[list(HOGS)[i % len(HOGS)]]], **start)
                  for i in range(hogs)]
+    hog_sched = {scheduling(p.pid) for p in hog_procs}
+    if hog_sched - {(os.SCHED_OTHER, 0)}:
+        raise SystemExit(f"{name}: hogs not at SCHED_OTHER nice 0: {hog_sched}")
     vc = [sys.executable, "-m", "controller.cli"]
     node_json = ["--json", nj] if NODE_JSON else []
+    at_node = flood is not None and flood[0] == "cmd/duty"
     try:
-        node = subprocess.Popen([*vc, "valve-node", "--config", cfg, "--connect", ep, *node_json], cwd=ROOT,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        ref = ["--reference", "zenoh"] if flood else []
+        node = subprocess.Popen([*vc, "valve-node", "--config", cfg, "--connect", ep, "--listen", node_ep,
+                                 *node_json], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                **start)
+        ref = ["--reference", "zenoh"] if flood and not at_node else []
         ctrl = subprocess.Popen([*vc, "run", "--config", cfg, "--plant", "zenoh", "--listen", ep, "--duration",
                                  str(duration), "--record", rec, "--json", summ, *ref], cwd=ROOT,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **start)
         if flood:
-            hog_procs.append(subprocess.Popen([sys.executable, "-c", FLOOD, ep, *flood, str(duration + 30)],
-                                              env=env))
+            hog_procs.append(subprocess.Popen([sys.executable, "-c", FLOOD, node_ep if at_node else ep, *flood,
+                                               str(duration + 30), "-" if at_node else "ref"], **start))
         while last_t(rec) < duration - 0.03 and ctrl.poll() is None:
             time.sleep(0.002)
         node.send_signal(signal.SIGTERM)
@@ -156,13 +203,22 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
     s = json.load(open(summ))
     n = json.load(open(nj)) if os.path.exists(nj) else node_line(n_out)
     rt_us = n.get("round_trip_us", {})
-    return {"case": name, "steps": s["steps"], "overruns": s["overruns"],
-            "overrun_pct": 100.0 * s["overruns"] / max(1, s["steps"] + s["overruns"]),
-            "stale": stale_during(rec, duration), "node_steps": n.get("steps"), "node_overruns": n.get("overruns"),
-            "fresh_cmd_pct": 100.0 * n["commands"] / n["steps"] if n.get("steps") else None,
-            "cmd_timeouts": n.get("command_timeouts"), "rt_p50_us": rt_us.get("p50"), "rt_p99_us": rt_us.get("p99"),
-            "compute_max_us": s["compute_us"]["max"], "lateness_max_us": s["lateness_us"]["max"],
-            "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]}}
+    row = {"case": name, "steps": s["steps"], "overruns": s["overruns"],
+           "overrun_pct": 100.0 * s["overruns"] / max(1, s["steps"] + s["overruns"]),
+           "stale": stale_during(rec, duration), "node_steps": n.get("steps"), "node_overruns": n.get("overruns"),
+           "fresh_cmd_pct": 100.0 * n["commands"] / n["steps"] if n.get("steps") else None,
+           "cmd_timeouts": n.get("command_timeouts"), "rt_p50_us": rt_us.get("p50"), "rt_p99_us": rt_us.get("p99"),
+           "compute_max_us": s["compute_us"]["max"], "lateness_max_us": s["lateness_us"]["max"],
+           "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]},
+           "bad_commands": n.get("bad_commands")}
+    if flood:  # the flooded process: its share of the configured rate and its longest step
+        if at_node:
+            row["flooded_rate_pct"] = 100.0 * n["steps"] / max(1, n["steps"] + n["overruns"])
+            row["flooded_longest_us"] = n.get("compute_us", {}).get("max")
+        else:
+            row["flooded_rate_pct"] = 100.0 * s["steps"] / max(1, s["steps"] + s["overruns"])
+            row["flooded_longest_us"] = s["compute_us"]["max"]
+    return row
 
 
 NODE_JSON = "--json" in subprocess.run([sys.executable, "-m", "controller.cli", "valve-node", "--help"], cwd=ROOT,
@@ -172,14 +228,14 @@ NODE_JSON = "--json" in subprocess.run([sys.executable, "-m", "controller.cli", 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=20.0)
-    ap.add_argument("--hogs-per-core", type=int, default=2)
+    ap.add_argument("--hogs-per-core", type=int, default=1)
     ap.add_argument("--json", default=None, help="write the table as JSON")
     ap.add_argument("--cases", nargs="*", default=None, metavar="WORDS", help="only the cases whose name contains one")
     ap.add_argument("--flood", action="store_true",
-                    help="also flood ref/flow and meas/flow (1 MB payloads, small ones as fast as Python "
-                         "publishes, 10 kHz) beside a Zenoh reference, all measures on, no hogs")
+                    help="also flood each key (1 MB payloads, small ones as fast as Python publishes, 10 kHz) "
+                         "beside a Zenoh reference, the shipped measures, no hogs")
     a = ap.parse_args()
-    try:  # the bench must stop the node on time, whatever the hogs do; its children start normal (RESET_ON_FORK)
+    try:  # the bench must stop the node on time, whatever the hogs do; its children start normal (normal())
         os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(1))
     except PermissionError:
         print("bench: no permission for SCHED_FIFO: the FIFO cases will run under the normal scheduler")
@@ -190,17 +246,28 @@ def main() -> None:
              ("hogs, loop FIFO", loop, hogs, None), ("hogs, loop FIFO + io FIFO", io_fifo, hogs, None),
              ("hogs, loop FIFO + io nice", io_nice, hogs, None)]
     if a.flood:
-        cases += [(f"flood {k} on {key}, {io}", s, 0, (key, k)) for key in ("ref/flow", "meas/flow")
-                  for k in ("1MB", "max", "10kHz") for io, s in (("io FIFO", io_fifo), ("io nice", io_nice))]
+        cases += [(f"flood {k} on {key}", io_fifo, 0, (key, k))
+                  for key in ("ref/flow", "meas/flow", "ctrl/mode", "meas/supply", "cmd/duty")
+                  for k in ("1MB", "max", "10kHz")]
     if a.cases:
         cases = [c for c in cases if any(w in c[0] for w in a.cases)]
     rows = []
+    load_before = os.getloadavg()
+    foreign = set()
     with tempfile.TemporaryDirectory() as tmp:
         for name, sched, h, flood in cases:
+            foreign.update(foreign_realtime())
             rows.append(case(re.sub(r"\W+", "_", name), sched, h, a.duration, tmp, flood))
             rows[-1]["case"] = name
             print(f"{name}: done", file=sys.stderr)
-    print(f"{cores} cores, {hogs} hogs ({a.hogs_per_core} per core: python spin, numpy), {a.duration:g} s per case")
+    load_after = os.getloadavg()
+    kinds = ", ".join(list(HOGS)[i % len(HOGS)] for i in range(hogs))
+    if foreign:
+        print("other processes with real-time threads during the bench (they share the cores at the loops' "
+              "priorities):\n  " + "\n  ".join(sorted(foreign)))
+    print(f"{cores} cores, {hogs} hogs ({kinds}; SCHED_OTHER, nice 0), "
+          f"{a.duration:g} s per case; load average 1/5/15 min before {'/'.join(f'{x:.2f}' for x in load_before)}, "
+          f"after {'/'.join(f'{x:.2f}' for x in load_after)}")
     hdr = ("case", "rate Hz", "steps", "overruns", "overrun %", "stale", "node steps", "fresh cmd %", "cmd timeouts",
            "rt p50 us", "rt p99 us", "longest step us", "lateness max us")
     keys = ("case", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "node_steps", "fresh_cmd_pct",
@@ -212,11 +279,21 @@ def main() -> None:
             v = r[k]
             cells.append("-" if v is None else (f"{v:.2f}" if isinstance(v, float) and k in ("overrun_pct", "rate_hz")
                                                 else f"{v:.0f}" if isinstance(v, float) else str(v)))
-        print(" | ".join(cells) + ("" if not r["case"].startswith("flood") else f"  faults {r['faults']}"))
-    base = next((r for r in rows if r["case"] == "hogs, loop FIFO"), {"overruns": 0})
+        print(" | ".join(cells))
+    floods = [r for r in rows if "flooded_rate_pct" in r]
+    if floods:
+        print("flood | flooded process | rate % | longest step us | faults (controller) | bad commands (node)")
+        for r in floods:
+            who = "valve node" if r["case"].endswith("cmd/duty") else "controller"
+            longest = "-" if r["flooded_longest_us"] is None else f"{r['flooded_longest_us']:.0f}"
+            print(f"{r['case']} | {who} | {r['flooded_rate_pct']:.2f} | {longest} | {r['faults']} | "
+                  f"{r['bad_commands']}")
+    base = next((r for r in rows if r["case"] == "hogs, nothing"), None)
     for r in rows:
-        if r["case"].startswith("hogs, loop FIFO +") and base["overruns"]:
-            print(f"overruns, {r['case']} / hogs, loop FIFO: {r['overruns'] / base['overruns']:.3f}")
+        if base is not None and r["case"].startswith("hogs, loop FIFO"):
+            print(f"{r['case']} against hogs, nothing: overruns {r['overruns']} / {base['overruns']}, "
+                  f"stale {r['stale']} / {base['stale']}, command timeouts {r['cmd_timeouts']} / "
+                  f"{base['cmd_timeouts']}")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

@@ -31,6 +31,7 @@ class NodeStats:
     commands: int = 0
     bad_commands: int = 0
     timeouts: int = 0  # times the command timeout closed the valve
+    compute_max_s: float = 0.0  # longest step, wake to end, s
     round_trip_s: array = field(default_factory=lambda: array("d"))  # measurement published -> its command received
 
     def to_json(self) -> dict:
@@ -39,7 +40,7 @@ class NodeStats:
         pct = {k: (float(np.percentile(rt, q)) * 1e6 if len(rt) else None) for k, q in (("p50", 50), ("p99", 99))}
         return {"steps": self.steps, "overruns": self.overruns, "commands": self.commands,
                 "bad_commands": self.bad_commands, "command_timeouts": self.timeouts,
-                "round_trip_us": {**pct, "n": len(rt)}}
+                "round_trip_us": {**pct, "n": len(rt)}, "compute_us": {"max": self.compute_max_s * 1e6}}
 
 
 class ValveNode:
@@ -86,6 +87,7 @@ class ValveNode:
             if self.aux_every and st.steps % self.aux_every == 0:
                 self.transport.publish_aux(t, {"supply_bar": out.supply_bar, "coil_temp_c": out.coil_temp_c})
             st.steps += 1
+            st.compute_max_s = max(st.compute_max_s, clock.now() - now)
             if (duration_s is not None and t >= duration_s) or (stop is not None and stop()):
                 return st
             deadline += period

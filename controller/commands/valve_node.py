@@ -14,7 +14,8 @@ def add_arguments(p) -> None:
                         "(files of `valvectl certs DIR`)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default or 0: until interrupted)")
     p.add_argument("--json", default=None, metavar="N.json",
-                   help='{"steps","overruns","commands","bad_commands","command_timeouts","round_trip_us":{"p50","p99"}}')
+                   help='{"steps","overruns","commands","bad_commands","command_timeouts","round_trip_us":{"p50","p99"},'
+                        '"compute_us":{"max"}} (compute: the longest step, wake to end)')
 
 
 def run(args) -> int:
