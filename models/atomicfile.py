@@ -99,3 +99,16 @@ def _name(fd: int, folder: str, tmp: str) -> None:
         os.fsync(out)
     finally:
         os.close(out)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, newline: str | None = None) -> None:
+    """Replace ``path`` by ``text`` (UTF-8) through :func:`atomic_open`."""
+    with atomic_open(path, newline=newline) as fh:
+        fh.write(text)
+
+
+def save_figure_atomic(fig, path: str | os.PathLike, **savefig_kw) -> None:
+    """``fig.savefig`` to ``path`` through :func:`atomic_open` (the format from the file's suffix, PNG without one)."""
+    fmt = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format=fmt, **savefig_kw)

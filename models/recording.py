@@ -18,6 +18,8 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .atomicfile import atomic_open
+
 REQUIRED = ("t_s", "duty_pct", "flow_lpm")
 OPTIONAL_NUMERIC = ("supply_bar", "ref_lpm", "coil_temp_c")
 #: Inclusive bounds: duty by DESIGN.md; flows and the supply within what any valve or sensor could report
@@ -419,14 +421,10 @@ def write_recording(path: str | os.PathLike, columns: Mapping[str, Sequence]) ->
     names = list(columns)
     n = len(next(iter(columns.values())))
     path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8", newline="") as fh:
+    with atomic_open(path, newline="") as fh:
         fh.write(",".join(names) + "\n")
         cols = [np.asarray(columns[k]) if not isinstance(columns[k], list) else columns[k] for k in names]
         for i in range(n):
             fh.write(
                 ",".join(c[i] if isinstance(c[i], str) else f"{float(c[i]):.9g}" for c in cols) + "\n"
             )
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)

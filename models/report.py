@@ -5,8 +5,9 @@ never sees one that names a missing figure) and one PNG per figure.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from .atomicfile import save_figure_atomic, write_text_atomic
 
 
 def write_report(folder, title: str, blocks, figures: dict | None = None, dpi: int = 110) -> Path:
@@ -28,7 +29,7 @@ def write_report(folder, title: str, blocks, figures: dict | None = None, dpi: i
     folder.mkdir(parents=True, exist_ok=True)
     figures = figures or {}
     for name, fig in figures.items():
-        fig.savefig(folder / f"{name}.png", dpi=dpi)
+        save_figure_atomic(fig, folder / f"{name}.png", dpi=dpi)
     text = "\n\n".join(blocks)
     for name in figures:
         tag = "{fig:" + name + "}"
@@ -37,7 +38,5 @@ def write_report(folder, title: str, blocks, figures: dict | None = None, dpi: i
         else:
             text += f"\n\n![{name}]({name}.png)"
     path = folder / "report.md"
-    tmp = folder / ".report.md.tmp"
-    tmp.write_text(f"# {title}\n\n{text}\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_text_atomic(path, f"# {title}\n\n{text}\n")
     return path

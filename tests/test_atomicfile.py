@@ -74,3 +74,21 @@ def test_a_killed_fit_leaves_no_temporary_beside_the_model(tmp_path, bench_ident
         p.send_signal(signal.SIGKILL)
         p.wait(60)
         assert leftovers(tmp_path) == []
+
+
+def test_text_and_figure_writers_go_through_atomic_open(tmp_path):
+    import matplotlib.figure
+
+    from models.atomicfile import save_figure_atomic, write_text_atomic
+
+    write_text_atomic(tmp_path / "report.md", "# title\n")
+    fig = matplotlib.figure.Figure()
+    fig.add_subplot().plot([0, 1], [1, 0])
+    save_figure_atomic(fig, tmp_path / "f.png", dpi=20)
+    save_figure_atomic(fig, tmp_path / "f.svg")
+    assert (tmp_path / "report.md").read_text() == "# title\n"
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the format follows the suffix
+    assert b"<svg" in (tmp_path / "f.svg").read_bytes()[:400]
+    with pytest.raises(ValueError):  # a figure that cannot be saved leaves nothing
+        save_figure_atomic(fig, tmp_path / "g.nosuchformat")
+    assert not (tmp_path / "g.nosuchformat").exists() and leftovers(tmp_path) == []

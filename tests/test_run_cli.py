@@ -44,3 +44,11 @@ def test_bad_arguments_exit_2(capsys):
     assert e.value.code == 2
     assert main(["run", "--duration", "-1"]) == 2
     assert "--duration" in capsys.readouterr().err
+
+
+def test_a_plot_suffix_matplotlib_cannot_write_is_bad_input_before_the_run(tmp_path, capsys):
+    assert main(["run", "--duration", "0.05", "--plot", str(tmp_path / "run.xyz"),
+                 "--json", str(tmp_path / "s.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--plot" in err and ".png" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "s.json").exists()  # refused before the work

@@ -15,6 +15,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from models.compare import compare_response, write_compare_report
+    from models.atomicfile import save_figure_atomic
     from models.model import write_json_atomic
     from models.recording import read_recording
 
@@ -32,7 +33,7 @@ def run(args) -> int:
     write_json_atomic(args.json, comparison.to_json())
     print(comparison.table())
     if args.plot:
-        comparison.plot().savefig(args.plot, dpi=110)
+        save_figure_atomic(comparison.plot(), args.plot, dpi=110)
         print(f"plot -> {args.plot}")
     if args.report:
         print(f"report -> {write_compare_report(comparison, args.report)}")

@@ -8,7 +8,8 @@ from models.recording import InputError
 
 def check_outputs(args, files=("json", "plot", "record"), folders=("report",)) -> None:
     """Each given output of ``args`` (``--json``, ``--plot``, ``--record``: files; ``--report``: a folder)
-    can be written: its folder exists and is writable (a report folder is created).
+    can be written: its folder exists and is writable (a report folder is created), and a plot's suffix names
+    a format matplotlib writes.
 
     Raises
     ------
@@ -26,6 +27,14 @@ def check_outputs(args, files=("json", "plot", "record"), folders=("report",)) -
             raise InputError(f"--{name} {path}: folder {parent} does not exist")
         if not os.access(parent, os.W_OK):
             raise InputError(f"--{name} {path}: folder {parent} is not writable")
+        if name == "plot":  # matplotlib picks the format by the suffix: an unknown one fails after the work
+            from matplotlib.backend_bases import FigureCanvasBase
+
+            formats = FigureCanvasBase.get_supported_filetypes()
+            suffix = os.path.splitext(path)[1].lstrip(".").lower()
+            if suffix not in formats:
+                raise InputError(f"--plot {path}: the file name must end in one of "
+                                 f"{', '.join('.' + f for f in sorted(formats))}")
     for name in folders:
         path = getattr(args, name, None)
         if not path:

@@ -47,6 +47,7 @@ def parse_inject(text: str) -> tuple[float, str, float]:
 def run(args) -> int:
     import signal
 
+    from models.atomicfile import save_figure_atomic
     from models.model import load_model, write_json_atomic
     from models.recording import InputError, RecordingWriter
 
@@ -152,7 +153,7 @@ def run(args) -> int:
     if args.json:
         write_json_atomic(args.json, s)
     if args.plot:
-        res.plot().savefig(args.plot, dpi=110)
+        save_figure_atomic(res.plot(), args.plot, dpi=110)
         print(f"plot -> {args.plot}")
     if args.report:
         print(f"report -> {res.write_report(args.report)}")

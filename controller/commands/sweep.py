@@ -19,6 +19,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from models.atomicfile import save_figure_atomic
     from models.model import write_json_atomic
     from models.recording import InputError
 
@@ -50,7 +51,7 @@ def run(args) -> int:
         fig = sweep_plot(r.table, s.objective, heat=heat, default_index=r.default, best_index=r.best,
                          title=f"{summ['candidates']} candidates x {summ['variants']} plant variants", best_xy=xy)
         if args.plot:
-            fig.savefig(args.plot, dpi=110)
+            save_figure_atomic(fig, args.plot, dpi=110)
         if args.report:
             print(f"report -> {write_sweep_report(args.report, summ, s.objective, fig)}")
     d, b = summ["default"], summ["best"]

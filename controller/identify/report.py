@@ -13,6 +13,8 @@ import os
 
 import numpy as np
 
+from models.atomicfile import save_figure_atomic, write_text_atomic
+
 from .dynamics import Dynamics, steps_plot
 from .estimate import Estimate, loops_plot, table
 from .session import SessionResult
@@ -83,7 +85,7 @@ def write_report(out_dir: str, res: SessionResult, est: Estimate, dyn: Dynamics,
     for name, fig in (("protocol.png", protocol_plot(res)),
                       ("loops.png", loops_plot(est, c["duty_pct"], c["flow_lpm"], rate_hz, dyn)),
                       ("steps.png", steps_plot(dyn, c["t_s"], c["flow_lpm"]))):
-        fig.savefig(os.path.join(out_dir, name), dpi=110)
+        save_figure_atomic(fig, os.path.join(out_dir, name), dpi=110)
         plt.close(fig)
     r = res.working_range
     v = est.results[est.chosen].validation
@@ -133,8 +135,5 @@ def write_report(out_dir: str, res: SessionResult, est: Estimate, dyn: Dynamics,
         gains = ", ".join(f"{k} = {x:.4g}" for k, x in b["params"].items() if k != "controller")
         lines.append(f"| {word} | {gains} | {b['worst_iae']:.4f} | {b['iae']:.4f} |")
     path = os.path.join(out_dir, "report.md")
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path

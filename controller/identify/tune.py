@@ -21,6 +21,7 @@ import dataclasses
 import os
 from dataclasses import dataclass
 
+from models.atomicfile import write_text_atomic
 from models.model import FittedModel, save_model
 from models.recording import InputError
 
@@ -85,17 +86,8 @@ def write_plant(out_dir: str, model_file: str, tau_s: float, delay_s: float, noi
         f"valve_dynamics = {tau_s!r}   # s, from the steps\n"
         f"transport_delay = {delay_s!r}   # s, from the steps (loop convention: one period less than command to reading)\n"
     )
-    _write_atomic(path, text)
+    write_text_atomic(path, text)
     return path
-
-
-def _write_atomic(path: str, text: str) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def run_config(base, out_dir: str, tau_s: float, delay_s: float, noise_lpm: float):
@@ -156,7 +148,7 @@ def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: floa
     run = run_config(base, out_dir, tau_s, delay_s, noise_lpm)
     write_run_config(run, run.path)
     sweep_path = os.path.join(out_dir, "sweep.toml")
-    _write_atomic(sweep_path, sweep_text(tau_s, delay_s, seed, candidates))
+    write_text_atomic(sweep_path, sweep_text(tau_s, delay_s, seed, candidates))
     spec = load_sweep(sweep_path)
     res = runner.run_sweep(spec, None, workers)
     runner.write_csv(res, os.path.join(out_dir, "sweep.csv"))

@@ -35,6 +35,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
+from models.atomicfile import write_text_atomic
 from models.recording import InputError
 from models.schema import NonEmpty, Positive, convert
 from models.tomlfile import read_toml
@@ -279,7 +280,4 @@ def write_run_config(run, path: str, duration_s: float | None = None) -> None:
     for sec, keys in sections.items():
         if sec and keys:
             lines += ["", f"[{sec}]"] + [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, "\n".join(lines) + "\n")

@@ -6,11 +6,11 @@ computes, :func:`diagnose_plot` returns the figures (no global matplotlib backen
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from ..atomicfile import save_figure_atomic, write_text_atomic
 from ..model import write_json_atomic
 from ..recording import write_recording
 from . import Diagnosis
@@ -141,7 +141,7 @@ def write_report(diag: Diagnosis, folder, source: str = "") -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     figs = diagnose_plot(diag)
     for name, fig in figs.items():
-        fig.savefig(folder / name, dpi=110)
+        save_figure_atomic(fig, folder / name, dpi=110)
     files = {"residuals": "residuals.png", "location": "location.png", **{n: n for n in figs}}
     b = diag.baseline
     m = diag.model
@@ -173,7 +173,5 @@ def write_report(diag: Diagnosis, folder, source: str = "") -> Path:
     for k, v in {**m["rejected"], **m["not_identifiable"]}.items():
         lines.append(f"- `{k}`: {v}")
     path = folder / "report.md"
-    tmp = folder / f".report.md.tmp{os.getpid()}"
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
