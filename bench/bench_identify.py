@@ -79,22 +79,47 @@ def stop(p: subprocess.Popen):
     return p.communicate(timeout=120)
 
 
-def held_out_rmse(cfg_path: str, out: str) -> float:
-    """RMSE (L/min) of the identified model behind its lag and delay against the twin's noise-free flow."""
+#: The held-out protocol opens the valve from closed over this long, s (not scored).
+OPENING_S = 2.0
+
+
+def held_out_duty(lo_pct: float, hi_pct: float, rate_hz: float) -> tuple[np.ndarray, int]:
+    """The held-out protocol over the working range and the row its scoring starts at.
+
+    The valve starts closed (at rest at 0 % duty, as it is at power-up, when the
+    identification starts and when the loop's feedforward starts from the safe duty) and
+    opens to ``lo_pct``; then random holds (minor loops at random places) and sines of
+    20, 5 and 1 s period over the whole range. Starting it at rest mid-range instead
+    would score a memory state no valve is in: a model's operators relaxed at a level
+    the valve was never held at.
+    """
+    n0 = int(round(OPENING_S * rate_hz))
+    duty = np.concatenate([np.zeros(n0 // 2), np.linspace(0.0, lo_pct, n0 - n0 // 2),
+                           protocols.random_holds(rate_hz, 60.0, seed=7, lo_pct=lo_pct, hi_pct=hi_pct,
+                                                  hold_s=(0.3, 3.0)),
+                           protocols.sines(rate_hz, 60.0, center_pct=(lo_pct + hi_pct) / 2,
+                                           amplitude_pct=(hi_pct - lo_pct) / 2, periods_s=(20.0, 5.0, 1.0))])
+    return duty, n0
+
+
+def held_out_rmse(plant_params, model, tau_s: float, delay_s: float, lo_pct: float, hi_pct: float) -> float:
+    """RMSE (L/min) of ``model`` behind its lag and delay against the twin's noise-free flow, held-out protocol."""
+    rate = 1000.0
+    duty, n0 = held_out_duty(lo_pct, hi_pct, rate)
+    true = Plant(plant_params, rate, seed=0).simulate(duty)["true_flow_lpm"]
+    # the plant's row k is its answer to the duty of row k, read one period later by a loop
+    pred = predict_flow(model, duty, rate, tau_s, delay_s + 1.0 / rate)
+    e = (pred[1:] - true[:-1])[n0:]
+    return float(np.sqrt(np.mean(e * e)))
+
+
+def identified_held_out_rmse(cfg_path: str, out: str) -> float:
+    """:func:`held_out_rmse` of the identification in ``out`` against the twin of ``cfg_path``."""
     cfg = load_run_config(cfg_path)
     plant_params = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
     summ = json.load(open(os.path.join(out, "identify.json")))
-    lo, hi = summ["working_range"]["lo_pct"], summ["working_range"]["hi_pct"]
-    rate = 1000.0
-    duty = np.concatenate([protocols.random_holds(rate, 60.0, seed=7, lo_pct=lo, hi_pct=hi, hold_s=(0.3, 3.0)),
-                           protocols.sines(rate, 60.0, center_pct=(lo + hi) / 2, amplitude_pct=(hi - lo) / 2,
-                                           periods_s=(20.0, 5.0, 1.0))])
-    true = Plant(plant_params, rate, seed=0).simulate(duty)["true_flow_lpm"]
-    model = load_model(os.path.join(out, "model.json"))
-    # the plant's row k is its answer to the duty of row k, read one period later by a loop
-    pred = predict_flow(model, duty, rate, summ["tau_s"], summ["delay_s"] + 1.0 / rate)
-    e = pred[1:] - true[:-1]
-    return float(np.sqrt(np.mean(e * e)))
+    return held_out_rmse(plant_params, load_model(os.path.join(out, "model.json")), summ["tau_s"], summ["delay_s"],
+                         summ["working_range"]["lo_pct"], summ["working_range"]["hi_pct"])
 
 
 def closed_loop(cfg: str, run_toml: str, out: str, word: str | None) -> dict:
@@ -137,7 +162,7 @@ def one(name: str, duration: float, root: str) -> dict:
     row = {"twin": name, "duration_s": summ["duration_s"], "wall_s": wall, "model": summ["model"],
            "tau_ms": summ["tau_s"] * 1e3, "delay_ms": summ["delay_s"] * 1e3,
            "tau_err": summ["tau_s"] / TAU_S - 1, "delay_err": summ["delay_s"] / DELAY_S - 1,
-           "val_rmse": summ["validation"]["rmse"], "held_out_rmse": held_out_rmse(cfg, out),
+           "val_rmse": summ["validation"]["rmse"], "held_out_rmse": identified_held_out_rmse(cfg, out),
            "round_trip_p50_us": nj["round_trip_us"]["p50"], "controller": summ["controller"]}
     run_toml = os.path.join(out, "run.toml")
     best = closed_loop(cfg, run_toml, folder, None)

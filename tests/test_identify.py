@@ -8,12 +8,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, step_model
+from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, static_flow, step_model
 from controller.identify.estimate import estimate
 from controller.identify.protocol import Program, ProtocolParams, working_range
 from controller.identify.session import Safety, run_session
 from controller.loop import SimClock
 from controller.transport.sim import SimTransport
+from models.diagnose.effects import delayed, first_order_lag
 from plant_sim.plant import Plant, load_plant
 
 RATE = 1000.0
@@ -84,6 +85,26 @@ def test_step_fit_recovers_lag_and_delay(tau, delay, dy, seed):
     assert f is not None
     assert f.tau_s == pytest.approx(tau, abs=max(4 * f.tau_se_s, 1e-3))
     assert f.delay_s == pytest.approx(delay, abs=max(4 * f.delay_se_s, 1e-3))
+
+
+@settings(max_examples=10, deadline=None)
+@given(tau=st.floats(0.003, 0.05), delay=st.floats(0.0, 0.03), seed=st.integers(0, 1000))
+def test_static_flow_takes_the_lag_and_delay_out(tau, delay, seed):
+    # a flow a static characteristic gives (slow, within the fits' band) behind a first-order lag and a delay
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 10.0, 1.0 / RATE)
+    u = 80.0 + 40.0 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 6.3)) + 20.0 * np.sin(2 * np.pi * 1.1 * t)
+    y = delayed(first_order_lag(u, RATE, tau, phase=0.0), RATE, delay) + rng.normal(0.0, 0.5, len(t))
+    at = t[: -int(0.05 * RATE)]
+    q = static_flow(t, y, np.ones(len(t), dtype=bool), at, tau, delay)
+    inner = slice(int(0.5 * RATE), -int(0.5 * RATE))  # the smoothing's ends
+
+    def rmse(v):
+        return float(np.sqrt(np.mean((v - u[: len(at)])[inner] ** 2)))
+
+    # within the sensor noise, and far closer than the flow only advanced by the delay (lagged by tau u')
+    assert rmse(q) < 0.5
+    assert rmse(q) < 0.3 * rmse(np.interp(at + delay, t, y))
 
 
 def test_session_recovers_lag_delay_and_an_invertible_model(session_60s):

@@ -127,6 +127,25 @@ def test_bad_sweep_file_is_one_line_naming_file_and_field_exit_2(small, tmp_path
     assert key in err or new.split("=")[1].strip().strip('"') in err
 
 
+def test_a_variant_runs_another_forward_model(small, tmp_path, capsys):
+    import dataclasses
+    import shutil
+
+    from controller.sweep.spec import plants
+
+    shutil.copy(ROOT / "config" / "valves" / "pvp" / "valve_pi_mod.json", tmp_path / "other.json")
+    small.write_text(SMALL + '\n[[variants]]\nmodel = "other.json"   # relative to the sweep file\n')
+    s = load_sweep(small)
+    nominal, _, other = plants(s.run, s.variants, s.path)
+    assert other.model.kind == "pi-mod" and nominal.model.kind != "pi-mod"
+    fields = [f.name for f in dataclasses.fields(nominal) if f.name != "model"]
+    assert [getattr(other, f) for f in fields] == [getattr(nominal, f) for f in fields]  # the model is all it changes
+    small.write_text(SMALL + '\n[[variants]]\nmodel = "missing.json"\n')
+    assert main(["sweep", "--config", str(small), "-o", str(tmp_path / "s.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "missing.json" in err
+
+
 def test_missing_sweep_file_exit_2(tmp_path, capsys):
     assert main(["sweep", "--config", str(tmp_path / "nope.toml"), "-o", str(tmp_path / "s.csv")]) == 2
     assert "no such file" in capsys.readouterr().err

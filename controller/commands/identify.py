@@ -124,8 +124,11 @@ def run(args) -> int:
     if plant is None:
         sys.stderr.write("valvectl identify: the simulated plant cannot run any fitted kind\n")
         return 1
+    # the model-error variant of the gain sweep: the valve as the next-best kind the plant can run describes it
+    others = sorted((r for r in est.results.values() if r.model.kind != plant.kind), key=lambda r: r.validation.rmse)
+    alt = next((r.model for r in others if plant_model(r.model, lambda: None) is not None), None)
     tuning = tune(cfg, out, est.model, plant, dyn.tau_s, dyn.delay_s, dyn.noise_lpm, idc["seed"],
-                  idc["tune_candidates"])
+                  idc["tune_candidates"], alt=alt)
     report = write_report(out, res, est, dyn, tuning, rate)
     summ = summary_json(res, est, dyn, tuning)
     write_json_atomic(os.path.join(out, "identify.json"), summ)

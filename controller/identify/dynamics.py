@@ -31,6 +31,9 @@ from scipy.optimize import least_squares
 
 #: A step must change the flow by this many noise standard deviations to be read.
 MIN_SNR = 20.0
+#: Corner of the zero-phase smoothing before the lag is inverted, Hz: ten times the fits' own
+#: lowpass (:mod:`models.preprocess`: 0.4 of the 5 Hz Nyquist of the 10 Hz fit rate).
+DECONVOLVE_HZ = 20.0
 
 
 @dataclass(frozen=True)
@@ -193,6 +196,39 @@ def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndar
     sd_d = float(np.std(d, ddof=1)) if n > 1 else float(fits[0].delay_se_s)
     return Dynamics(float(np.median(tau)), float(np.median(d)), 1.2533 * sd_t / math.sqrt(n),
                     1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits))
+
+
+def static_flow(t_s: np.ndarray, flow_lpm: np.ndarray, fresh: np.ndarray, at_s: np.ndarray, tau_s: float,
+                delay_s: float) -> np.ndarray:
+    """The flow the valve's static characteristic gave at ``at_s``: the lag and delay taken out, L/min.
+
+    The measured flow is advanced by the delay (``delay_s``: command to reading) and the
+    first-order lag ``tau dq/dt = u - q`` is inverted, ``u = q + tau dq/dt``, so a static
+    (rate-independent) model fitted to it is not smeared by the valve's dynamics: a sweep's
+    branches are not shifted by its rate, and a reversal's corner is sharp. The flow is
+    smoothed (zero phase, :data:`DECONVOLVE_HZ`) before the derivative, which the sensor
+    noise would otherwise swamp; the fit's own lowpass is ten times lower, so nothing it
+    keeps is lost.
+
+    Parameters
+    ----------
+    t_s, flow_lpm : ndarray
+        The recording.
+    fresh : ndarray of bool
+        Rows whose flow was received in that row's step (the others repeat an older reading).
+    at_s : ndarray
+        Times of the commands to give the static flow for, s (evenly spaced).
+    tau_s, delay_s : float
+        The valve's lag and its command-to-reading delay, s.
+    """
+    from models.preprocess import lowpass
+
+    q = np.interp(np.asarray(at_s, dtype=np.float64) + delay_s, t_s[fresh], flow_lpm[fresh])
+    if len(q) < 2 or tau_s <= 0.0:
+        return q
+    rate_hz = (len(at_s) - 1) / (at_s[-1] - at_s[0])
+    q = lowpass(q, DECONVOLVE_HZ, rate_hz)
+    return q + tau_s * np.gradient(q, at_s)
 
 
 def steps_plot(dyn: Dynamics, t_s: np.ndarray, flow_lpm: np.ndarray, n: int = 6, ax=None):

@@ -5,8 +5,8 @@ lag and delay behind them, so:
 
 - each kind is fitted (:func:`models.fitting.fit_model`, the paper's
   preprocessing) on the rows of the range ramp, the sweep and the reversals
-  against the flow read ``tau + delay`` later (a first-order lag of a slow
-  input is that input delayed by ``tau``), twice: from the first row on the
+  against the static flow of each row: the flow read ``delay`` later with the
+  first-order lag inverted (:func:`.dynamics.static_flow`), twice: from the first row on the
   duty as commanded (the valve was at rest at the lowest duty, as every
   model's memory starts; the models see the dead zone and the full-open end
   and the memory they leave), and from the sweep's entry into the working
@@ -31,7 +31,7 @@ from models.fitting import KINDS, fit_model
 from models.metrics import Metrics, metrics
 from models.model import FittedModel
 
-from .dynamics import Dynamics
+from .dynamics import Dynamics, static_flow
 
 FIT_PHASES = ("range", "sweep", "reversals")
 VALIDATION_PHASE = "steps"
@@ -131,7 +131,6 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
         Rows whose flow was received in that step (the fit reads the flow ahead from them only).
     """
     val_mask = phase == VALIDATION_PHASE
-    lag_s = dyn.tau_s + dyn.delay_s + 1.0 / rate_hz
     f = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
     end = int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s)
     sweep_rows = np.flatnonzero(phase == "sweep")
@@ -139,6 +138,10 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
     # (name, duty the model sees, first row): from the valve at rest on the duty as commanded, or from
     # the sweep's entry into the working range (memory wiped below it) on the duty held to that range
     inputs = (("commanded", duty_pct, 0), ("working", np.clip(duty_pct, lo_pct, hi_pct), entry))
+    fit_end = int(np.flatnonzero(np.isin(phase, FIT_PHASES))[-1]) + 1
+    # the static flow of each command row the fits may use, per first row (its smoothing spans its rows only)
+    static = {first: static_flow(t_s, flow_lpm, f, t_s[first:fit_end], dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
+              for _, _, first in inputs}
     results = {}
     for kind in kinds:
         if progress:
@@ -147,9 +150,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
             fit_mask = np.isin(phase, FIT_PHASES)
             fit_mask[:first] = False
             fit_idx = np.flatnonzero(fit_mask)
-            ahead = np.interp(t_s[fit_idx] + lag_s, t_s[f], flow_lpm[f])
             try:
-                model = fit_model(kind, t_s[fit_idx], x[fit_idx], ahead, source="identification")
+                model = fit_model(kind, t_s[fit_idx], x[fit_idx], static[first][fit_idx - first], source="identification")
             except (np.linalg.LinAlgError, ValueError) as e:
                 # one kind that cannot be fitted on this valve must not cost the whole identification
                 sys.stderr.write(f"identify: {kind} on the {name} duty not fitted: {e}\n")

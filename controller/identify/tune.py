@@ -9,10 +9,15 @@ Written to the output folder:
 - ``run.toml``: the input run configuration with this valve's feedforward
   model, ``[valve] tau_s, delay_s`` and the gains of the sweep;
 - ``sweep.toml`` and ``sweep.csv``: the gain sweep (:mod:`controller.sweep`)
-  on that plant and on variants a real valve drifts to (lag and delay 30 %
-  longer or shorter, supply 10 % low), ranked by the worst IAE over them.
-  Every controller word gets its best gains, and the run's controller is the
-  best word.
+  on that plant and on variants of it, ranked by the worst IAE over them.
+  The feedforward inverts the very model the nominal plant runs, so on the
+  nominal plant alone the sweep would trust it more than the real valve
+  deserves; the variants are the errors of the identification and the drifts
+  of a valve: lag and delay 30 % longer or shorter, supply 10 % low or high
+  (the flow gain about 7 % off), and the valve as the runner-up model kind
+  describes it (``plant_alt.json``: a model error as large as the kinds'
+  disagreement). Every controller word, ``pid`` included, gets its best gains
+  on the same variants, and the run's controller is the best word.
 """
 from __future__ import annotations
 
@@ -103,8 +108,9 @@ def run_config(base, out_dir: str, tau_s: float, delay_s: float, noise_lpm: floa
     return RunConfig(os.path.join(out_dir, "run.toml"), os.path.abspath(out_dir), s)
 
 
-def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200) -> str:
-    """``sweep.toml`` of the short gain sweep on the identified plant, about ``candidates`` candidates."""
+def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200, alt_model: str | None = None) -> str:
+    """``sweep.toml`` of the short gain sweep on the identified plant, about ``candidates`` candidates
+    (``alt_model``: the runner-up kind's model file, a variant when given)."""
     lines = [
         "# The short gain sweep of valvectl identify, on the identified valve (plant.toml) and its drifts.",
         'run = "run.toml"',
@@ -125,7 +131,13 @@ def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200) -
         "",
         "[[variants]]              # supply 10 % low: every flow about 7 % lower than the model says",
         "supply_bar = 2.7",
+        "",
+        "[[variants]]              # supply 10 % high: every flow about 7 % higher",
+        "supply_bar = 3.3",
     ]
+    if alt_model:
+        lines += ["", "[[variants]]              # the valve as the runner-up model kind describes it: model error",
+                  f"model = {_toml(alt_model)}"]
     for word, (n, ranges) in SWEEP_CANDIDATES.items():
         lines += ["", "[[candidates]]", f'controller = "{word}"', f"sample = {max(4, round(n * candidates / 200))}"]
         for k, (kind, (lo, hi)) in ((k, next(iter(v.items()))) for k, v in ranges.items()):
@@ -134,8 +146,11 @@ def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200) -
 
 
 def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: float, delay_s: float, noise_lpm: float,
-         seed: int = 0, candidates: int = 200, workers: int | None = None) -> Tuning:
-    """Write model, plant, sweep and run files to ``out_dir``, run the sweep, write the tuned ``run.toml``."""
+         seed: int = 0, candidates: int = 200, workers: int | None = None, alt: FittedModel | None = None) -> Tuning:
+    """Write model, plant, sweep and run files to ``out_dir``, run the sweep, write the tuned ``run.toml``.
+
+    ``alt`` (a kind the simulated plant can run, other than ``plant``'s) is the model-error variant.
+    """
     from controller.sweep import runner
     from controller.sweep.spec import apply, load_sweep, write_run_config
 
@@ -148,7 +163,11 @@ def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: floa
     run = run_config(base, out_dir, tau_s, delay_s, noise_lpm)
     write_run_config(run, run.path)
     sweep_path = os.path.join(out_dir, "sweep.toml")
-    write_text_atomic(sweep_path, sweep_text(tau_s, delay_s, seed, candidates))
+    alt_file = None
+    if alt is not None:
+        alt_file = "plant_alt.json"
+        save_model(alt, os.path.join(out_dir, alt_file))
+    write_text_atomic(sweep_path, sweep_text(tau_s, delay_s, seed, candidates, alt_file))
     spec = load_sweep(sweep_path)
     res = runner.run_sweep(spec, None, workers)
     runner.write_csv(res, os.path.join(out_dir, "sweep.csv"))

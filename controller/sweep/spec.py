@@ -21,6 +21,8 @@ Top-level keys (all optional except ``candidates``)::
     [[variants]]             # plant variants on top of the run's simulated valve; the first is the
     [[variants]]             # nominal one (an empty table: the run's valve as it is)
     supply_bar = 2.6         # PlantParams fields and effect words (DESIGN.md units)
+    [[variants]]
+    model = "other.json"     # another forward model as the valve (relative to this file): model error
 
     [[candidates]]           # see controller.sweep.space
 """
@@ -135,7 +137,9 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     from plant_sim.plant import check_settings
 
     for i, v in enumerate(variants):
-        check_settings(v, f"{path}: variants[{i}]")
+        if "model" in v:
+            variants[i] = v = {**v, "model": _variant_model(v["model"], folder, f"{path}: variants[{i}]")}
+        check_settings({k: x for k, x in v.items() if k != "model"}, f"{path}: variants[{i}]")
 
     known = known_settings(run)
     seed = f.seed
@@ -230,17 +234,34 @@ def reference(run, duration_s: float) -> np.ndarray:
     return np.clip(profile.value(t), 0.0, run["loop"]["flow_max_lpm"])
 
 
+def _variant_model(value, folder: str, where: str) -> str:
+    """A variant's ``model``: the absolute path of a forward model file the simulated valve can run."""
+    from models.model import load_model
+    from plant_sim.plant import PLANT_KINDS
+
+    if not isinstance(value, str) or not value:
+        raise InputError(f"{where}: model: expected the path of a model file")
+    path = value if os.path.isabs(value) else os.path.join(folder, value)
+    kind = load_model(path).kind
+    if kind not in PLANT_KINDS:
+        raise InputError(f"{where}: model: the simulated valve cannot run kind {kind!r} (one of {', '.join(PLANT_KINDS)})")
+    return path
+
+
 def plants(run, variants: list, source: str) -> list:
-    """PlantParams per variant: the run's simulated valve with each variant's changes."""
+    """PlantParams per variant: the run's simulated valve with each variant's changes (``model``: another
+    forward model, an absolute path as :func:`load_sweep` leaves it)."""
+    from models.model import load_model
     from plant_sim.effects import EFFECTS
     from plant_sim.plant import load_plant
 
     out = []
     for i, v in enumerate(variants):
         effects = {**run["effects"], **{k: x for k, x in v.items() if k in EFFECTS}}
-        fields = {k: (tuple(x) if isinstance(x, list) else x) for k, x in v.items() if k not in EFFECTS}
+        fields = {k: (tuple(x) if isinstance(x, list) else x) for k, x in v.items() if k not in EFFECTS and k != "model"}
         try:
-            out.append(load_plant(run.resolve(run[""]["plant_config"]), effects=effects, **fields))
+            p = load_plant(run.resolve(run[""]["plant_config"]), effects=effects, **fields)
+            out.append(p.replace(model=load_model(v["model"])) if "model" in v else p)
         except InputError as exc:
             raise InputError(f"{source}: variants[{i}]: {exc}") from None
     return out
