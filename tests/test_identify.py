@@ -73,6 +73,12 @@ def test_range_ramp_finds_cracking_and_full_open():
     # 3 % and 98 % of the full flow on a linear ramp from 42 to 72 %
     assert r.lo_pct == pytest.approx(42.0 + 0.03 * 30.0, abs=0.3)
     assert r.hi_pct == pytest.approx(42.0 + 0.98 * 30.0, abs=0.3)
+    # a hysteretic valve closes below the duty it cracked at: on the way down it passes flow to 30 %
+    down = d[::-1]
+    down_flow = 150.0 * np.clip((down - 30.0) / 42.0, 0, 1)
+    r2 = working_range(d, flow, 1000.0, down, down_flow)
+    assert r2.lo_pct == pytest.approx(30.0 + 0.03 * r2.flow_max_lpm / 150.0 * 42.0, abs=0.3)
+    assert r2.hi_pct == r.hi_pct
 
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -4,9 +4,11 @@ Four phases, in order, every one fitted to the duration asked for:
 
 1. ``range``: a ramp up from the lowest allowed duty, turning back at the
    highest allowed duty or as soon as the flow reaches the ceiling (a
-   fraction of the flow limit), then down again. The ascending ramp gives the
-   working range: ``lo`` where the valve starts to pass flow (cracking),
-   ``hi`` where the flow stops rising (fully open) or the ceiling was met.
+   fraction of the flow limit), then down again. The ramps give the working
+   range: ``lo`` where the valve passes flow on either ramp (cracking on the
+   way up, or closing on the way down: a hysteretic valve closes well below
+   the duty it cracked at, and a controller asking for no flow must know
+   where), ``hi`` where the flow stops rising (fully open) or the ceiling was met.
    It is the one adaptive phase; the rest is planned once it ends.
 2. ``sweep``: the paper's identification signal (§2.2, Fig. 2), swings of
    growing amplitude about the middle of [lo, hi]
@@ -82,7 +84,8 @@ class WorkingRange:
     Attributes
     ----------
     lo_pct : float
-        Duty at which the flow first exceeds :data:`CRACK_FRACTION` of its largest value, %.
+        Lowest duty with a flow above :data:`CRACK_FRACTION` of its largest value: on the way up
+        (cracking) or on the way down (closing), %.
     hi_pct : float
         Duty at which it first reaches :data:`OPEN_FRACTION` of it, %.
     flow_max_lpm : float
@@ -98,8 +101,10 @@ class WorkingRange:
         return self.hi_pct - self.lo_pct
 
 
-def working_range(duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_hz: float) -> WorkingRange:
-    """Cracking and full-open duty from an ascending ramp (flow smoothed over 50 ms against the noise).
+def working_range(duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_hz: float, down_duty_pct: np.ndarray | None = None,
+                  down_flow_lpm: np.ndarray | None = None) -> WorkingRange:
+    """Working range from an ascending ramp and, when given, the descending one after it
+    (flow smoothed over 50 ms against the noise).
 
     Raises
     ------
@@ -107,7 +112,11 @@ def working_range(duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_hz: float) ->
         When the flow never rises: no working range to identify.
     """
     w = max(1, int(round(0.05 * rate_hz)))
-    smooth = np.convolve(flow_lpm, np.ones(w) / w, mode="same") if len(flow_lpm) > w else np.asarray(flow_lpm)
+
+    def smoothed(f):
+        return np.convolve(f, np.ones(w) / w, mode="same") if len(f) > w else np.asarray(f, dtype=np.float64)
+
+    smooth = smoothed(flow_lpm)
     top = float(np.max(smooth)) if len(smooth) else 0.0
     if not top > 1.0:
         raise InputError(f"identify: the flow never exceeded 1 L/min on the range ramp (largest {top:.2f} L/min): "
@@ -115,6 +124,10 @@ def working_range(duty_pct: np.ndarray, flow_lpm: np.ndarray, rate_hz: float) ->
     i_lo = int(np.argmax(smooth > CRACK_FRACTION * top))
     i_hi = int(np.argmax(smooth >= OPEN_FRACTION * top))
     lo, hi = float(duty_pct[max(i_lo - 1, 0)]), float(duty_pct[i_hi])
+    if down_duty_pct is not None and len(down_duty_pct):
+        passing = np.flatnonzero(smoothed(down_flow_lpm) > CRACK_FRACTION * top)
+        if len(passing):  # the last duty on the way down that still passed flow, one row on
+            lo = min(lo, float(down_duty_pct[min(passing[-1] + 1, len(down_duty_pct) - 1)]))
     if not hi - lo > 1.0:
         raise InputError(f"identify: working range {lo:.1f}..{hi:.1f} % is too narrow to identify")
     return WorkingRange(lo, hi, top)
@@ -197,6 +210,8 @@ class Program:
         self.turn: tuple[float, float] | None = None  # (time, duty) the ramp turned back at
         self.up_duty: list[float] = []
         self.up_flow: list[float] = []
+        self.down_duty: list[float] = []
+        self.down_flow: list[float] = []
         self.range: WorkingRange | None = None
         self.rest: np.ndarray | None = None
         self.rest_phases: list = []
@@ -219,6 +234,9 @@ class Program:
                     self.turn = (t_s, self.duty)
                 else:
                     self.duty = min(p.duty_min_pct + self.ramp_rate * t_s, p.duty_max_pct)
+            else:
+                self.down_duty.append(self.duty)
+                self.down_flow.append(flow_lpm)
             if self.turn is not None:
                 self.duty = max(self.turn[1] - self.ramp_rate * (t_s - self.turn[0]), p.duty_min_pct)
                 if self.duty <= p.duty_min_pct:
@@ -232,7 +250,8 @@ class Program:
         return self.duty, self.phase
 
     def _plan_rest(self, t_s: float) -> None:
-        self.range = working_range(np.asarray(self.up_duty), np.asarray(self.up_flow), self.p.rate_hz)
+        self.range = working_range(np.asarray(self.up_duty), np.asarray(self.up_flow), self.p.rate_hz,
+                                   np.asarray(self.down_duty), np.asarray(self.down_flow))
         left_s = max(self.p.duration_s - t_s, 1.0)
         self.rest, self.rest_phases = plan(self.range, self.duty, left_s, self.p.rate_hz, self.p.seed)
         self.rest = np.clip(self.rest, self.p.duty_min_pct, self.p.duty_max_pct)
