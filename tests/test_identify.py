@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, static_flow, step_model
+from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, static_flow, step_model, step_rows
 from controller.identify.estimate import estimate
 from controller.identify.protocol import Program, ProtocolParams, working_range
 from controller.identify.session import Safety, run_session
@@ -90,7 +90,9 @@ def test_step_fit_recovers_lag_and_delay(tau, delay, dy, seed):
     f = fit_step(t, y, 0.0, noise_std(y))
     assert f is not None
     assert f.tau_s == pytest.approx(tau, abs=max(4 * f.tau_se_s, 1e-3))
-    assert f.delay_s == pytest.approx(delay, abs=max(4 * f.delay_se_s, 1e-3))
+    # a long lag and a small step blur where the delay ends: the Jacobian's error understates that at the
+    # bound delay = 0, so a twentieth of the lag is allowed too
+    assert f.delay_s == pytest.approx(delay, abs=max(4 * f.delay_se_s, 1e-3, 0.05 * tau))
 
 
 @settings(max_examples=10, deadline=None)
@@ -127,6 +129,25 @@ def test_session_recovers_lag_delay_and_an_invertible_model(session_60s):
     assert est.chosen == "pi" and est.results["pi"].invertible and not est.results["preisach"].invertible
     # held-out steps: the twin is a PI behind this lag and delay, so little beyond the sensor noise is left
     assert est.results["pi"].validation.rmse < 4 * dyn.noise_lpm
+
+
+def test_steps_a_stall_fell_into_are_left_out(session_60s):
+    c, rows = session_60s.columns, session_60s.phase == "steps"
+    t, d, flow = c["t_s"], c["duty_pct"], c["flow_lpm"].copy()
+    fresh = np.ones(len(t), dtype=bool)
+    starts = [k for k in step_rows(d) if rows[k] and rows[k - 1]]
+    stalled = [k for i, k in enumerate(starts) if i % 3]  # two steps in three
+    for k in stalled:
+        # the bridge stalls 16 ms after the command (no readings: the last one repeats), and the valve
+        # took the command 20 ms late
+        flow[k:k + 300] = c["flow_lpm"][k - 20:k + 280]
+        fresh[k + 2:k + 18] = False
+        flow[k + 2:k + 18] = flow[k + 1]
+    dyn = dynamics_from_steps(t, d, flow, rows, fresh=fresh)
+    assert not {f.t0_s for f in dyn.steps} & {t[k] for k in stalled}  # every stalled step left out
+    assert dyn.disturbed >= len(stalled) // 2  # (some steps are too small to read at all)
+    assert dyn.tau_s == pytest.approx(TAU, rel=0.05)
+    assert dyn.delay_s - 1 / RATE == pytest.approx(DELAY, rel=0.05)
 
 
 def test_flow_above_the_limit_aborts_at_once_to_the_safe_duty():

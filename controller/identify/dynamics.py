@@ -17,6 +17,16 @@ by a disturbance); their standard error is ``1.2533 s / sqrt(n)`` (the
 median's, for a normal spread ``s`` over the steps), and each step carries
 the standard errors of its own fit (from the Jacobian).
 
+Only steps read without a stall count: on a busy machine the session's loop
+or the valve's bridge stalls for some milliseconds now and then, and a step
+whose transient a stall fell into looks slower and later than the valve is
+(a recording with a third of its periods missed read 25 ms and 17.5 ms for a
+15 ms lag and a 10 ms delay; its clean steps, 15.1 ms and 10.0 ms). A step is
+clean when no fresh reading in its transient (from the command to the delay
+plus four lags, as all steps read them) came more than
+:data:`CLEAN_GAP_PERIODS` periods after the one before; when fewer than
+:data:`MIN_CLEAN_STEPS` are clean, the least disturbed ones are used.
+
 ``t0`` is the time of the row that commanded the step, so the delay is
 the command-to-measurement delay a loop on the same transport sees
 (transport latency included).
@@ -31,6 +41,10 @@ from scipy.optimize import least_squares
 
 #: A step must change the flow by this many noise standard deviations to be read.
 MIN_SNR = 20.0
+#: A step's transient is clean when no fresh reading in it came later than this many periods after the one before.
+CLEAN_GAP_PERIODS = 2.5
+#: At least this many steps make the figures: the least disturbed ones when fewer are clean.
+MIN_CLEAN_STEPS = 3
 #: Corner of the zero-phase smoothing before the lag is inverted, Hz: ten times the fits' own
 #: lowpass (:mod:`models.preprocess`: 0.4 of the 5 Hz Nyquist of the 10 Hz fit rate).
 DECONVOLVE_HZ = 20.0
@@ -86,6 +100,9 @@ class Dynamics:
     noise_lpm : float
         Sensor noise, standard deviation per reading, L/min.
     steps : tuple of StepFit
+        The steps the figures are from.
+    disturbed : int
+        Steps read but left out: a stall fell into their transient.
     """
 
     tau_s: float
@@ -96,11 +113,12 @@ class Dynamics:
     delay_sd_s: float
     noise_lpm: float
     steps: tuple
+    disturbed: int = 0
 
     def to_json(self) -> dict:
         return {"tau_s": self.tau_s, "delay_s": self.delay_s, "tau_se_s": self.tau_se_s,
                 "delay_se_s": self.delay_se_s, "tau_sd_s": self.tau_sd_s, "delay_sd_s": self.delay_sd_s,
-                "noise_lpm": self.noise_lpm, "steps": len(self.steps)}
+                "noise_lpm": self.noise_lpm, "steps": len(self.steps), "steps_disturbed": self.disturbed}
 
 
 def step_model(dt_s: np.ndarray, y0: float, dy: float, tau_s: float, delay_s: float) -> np.ndarray:
@@ -189,13 +207,35 @@ def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndar
                 "y0_lpm", "dy_lpm", "tau_s", "delay_s", "tau_se_s", "delay_se_s", "rmse_lpm"))))
     if not fits:
         raise ValueError("no step could be read (too small against the noise, or too short)")
+    read = len(fits)
+    fits = undisturbed(fits, t_s[fresh], float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
     tau = np.array([f.tau_s for f in fits])
     d = np.array([f.delay_s for f in fits])
     n = len(fits)
     sd_t = float(np.std(tau, ddof=1)) if n > 1 else float(fits[0].tau_se_s)
     sd_d = float(np.std(d, ddof=1)) if n > 1 else float(fits[0].delay_se_s)
     return Dynamics(float(np.median(tau)), float(np.median(d)), 1.2533 * sd_t / math.sqrt(n),
-                    1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits))
+                    1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits), read - n)
+
+
+def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> list:
+    """The steps whose transient no stall fell into (at least :data:`MIN_CLEAN_STEPS`: the least disturbed).
+
+    A step's disturbance is the longest wait between fresh readings (times ``fresh_t_s``) from
+    its command to the median delay plus four median lags over all steps (stalls lengthen
+    those, so the window errs long).
+    """
+    window = float(np.median([f.delay_s for f in fits]) + 4.0 * np.median([f.tau_s for f in fits]))
+    gaps = []
+    for f in fits:
+        a, b = np.searchsorted(fresh_t_s, [f.t0_s - period_s, f.t0_s + window])
+        seen = fresh_t_s[a:b + 1]
+        gaps.append(float(np.max(np.diff(seen))) if len(seen) > 1 else math.inf)
+    gaps = np.array(gaps)
+    clean = gaps <= CLEAN_GAP_PERIODS * period_s
+    if clean.sum() >= min(MIN_CLEAN_STEPS, len(fits)):
+        return [f for f, c in zip(fits, clean) if c]
+    return [fits[i] for i in sorted(np.argsort(gaps, kind="stable")[:MIN_CLEAN_STEPS])]
 
 
 def static_flow(t_s: np.ndarray, flow_lpm: np.ndarray, fresh: np.ndarray, at_s: np.ndarray, tau_s: float,
