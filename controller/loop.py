@@ -302,9 +302,7 @@ class Loop:
         # Warm-up: each law computes one throw-away step before the first deadline, so loading its
         # compiled kernels (numba's cache: tens to hundreds of ms on a busy host) never stalls a live
         # step, nor the valve, whose own command timeout would close it meanwhile.
-        zero = np.zeros(1)
-        for p in sup.laws.values():
-            control.step(p, control.init(p, 0.0, safe), zero, zero, period, zero)
+        sup.warm_up(period, safe)
 
         gc.collect()
         gc.freeze()

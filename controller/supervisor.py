@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .laws import control, kalman
+from .watchdog import Faults
 
 #: The controller a failing law hands over to: feedback on the measured flow around the feedforward.
 FALLBACK = "ff+pid"
@@ -89,6 +90,23 @@ class Supervisor:
     @property
     def params(self) -> control.ControllerParams:
         return self.laws[self.word]
+
+    def warm_up(self, dt_s: float, duty_pct: float) -> None:
+        """One throw-away pass of every law through the live path (step with the Kalman prediction and its
+        health checks, resume, transfer), so that loading compiled kernels (numba's cache: milliseconds per
+        kernel and signature) never stalls a live step. The supervisor is left as it was."""
+        saved = (self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag)
+        zero = np.zeros(1)
+        try:
+            for word, p in self.laws.items():
+                self.word = word
+                ctrl = control.init(p, 0.0, duty_pct)
+                new, _ = self._law_step(ctrl, zero, zero, dt_s, zero, 0.0, Faults())
+                control.resume(p, new, 0.0, duty_pct)
+                for other in self.laws.values():
+                    control.transfer(other, new, 0.0, zero)
+        finally:
+            self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag = saved
 
     def request(self, word: str) -> bool:
         """Ask for ``word`` from the next step on; False (nothing changes) for a word this run lacks."""

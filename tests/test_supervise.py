@@ -261,3 +261,24 @@ def test_recorded_reference_replays_a_run_recording(tmp_path, cfg):
     bad = tmp_path / "bad.csv"
     bad.write_text("t_s,ref_lpm\n0,1\n0,2\n")
     assert main(["run", "--reference", str(bad)]) == 2
+
+
+def test_warm_up_loads_every_kernel_the_live_steps_use_and_leaves_the_supervisor_as_it_was(cfg, model):
+    """After the warm-up, live steps of every word, a resume and switches compile or load nothing more
+    (a kernel loaded in a live step costs milliseconds: overruns and a late command)."""
+    from controller.laws import kalman
+    from controller.watchdog import Faults
+
+    sup = supervisor(cfg, "ff+kf", model)
+    sup.warm_up(1e-3, 0.0)
+    assert (sup.word, sup.pending, sup.mismatch_lpm != sup.mismatch_lpm) == ("ff+kf", None, True)
+    kernels = [f for f in (*vars(control).values(), *vars(kalman).values()) if hasattr(f, "signatures")]
+    before = {f: len(f.signatures) for f in kernels}
+    ctrl = sup.init(30.0, 0.0)
+    faults = Faults()
+    for k, word in enumerate(sup.laws):
+        sup.request(word)
+        for i in range(3):
+            ctrl, cmd = sup.step(ctrl, 40.0, 30.0 + i, 1e-3, 40.0, k * 0.01 + i * 1e-3, faults)
+        ctrl = sup.resume(ctrl, 31.0, float(cmd.duty_pct[0]))
+    assert {f: len(f.signatures) for f in kernels} == before
