@@ -191,6 +191,12 @@ class PreisachParams(msgspec.Struct, forbid_unknown_fields=True):
             raise ValueError("alpha: every relay needs alpha >= beta")
 
 
+class InversePreisachParams(msgspec.Struct, forbid_unknown_fields=True):
+    """The inverse of a Preisach model is solved per sample through its forward model."""
+
+    forward: PreisachParams
+
+
 class PreisachContParams(msgspec.Struct, forbid_unknown_fields=True):
     """Everett function sampled on an (n+1) x (n+1) mesh, n >= 1."""
 
@@ -252,7 +258,8 @@ register("pi-asym", "models.pi_asym:AsymmetricPIModel", PIAsymParams,
          inverse=("inverse-pi-asym", "models.pi_asym:InverseAsymmetricPI", InversePIAsymParams), max_n=2000)
 register("pi-mod", "models.pi_mod:ModifiedPIModel", PIModParams,
          inverse=("inverse-pi-mod", "models.pi_mod:InverseModifiedPI", InversePIModParams), max_n=2000)
-register("preisach", "models.preisach:PreisachModel", PreisachParams, max_n=200)
+register("preisach", "models.preisach:PreisachModel", PreisachParams,
+         inverse=("inverse-preisach", "models.preisach:InversePreisach", InversePreisachParams), max_n=200)
 register("preisach-cont", "models.preisach_cont:ContinuousPreisachModel", PreisachContParams, max_n=MAX_MESH - 1)
 register("bouc-wen", "models.bouc_wen:BoucWenModel", BoucWenParams)
 

@@ -74,6 +74,90 @@ def switch(alpha, beta, g, xk):
 
 
 @njit(cache=True)
+def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, hi_end):
+    """Input where the increasing staircase ``base + sum_{keys_i <= x} weights_i`` over
+    ``keys[start:stop]`` (within ``[kmin, kmax]``; ``weights >= 0``; ``x`` in ``[lo_end, hi_end]``)
+    is at its level nearest ``target``: the middle of that level's interval, or ``hi_end`` for
+    the top level (nothing more to give). The entries are reordered in place.
+
+    The level crossing ``target`` is found by splitting the candidate keys at the middle of
+    their range and keeping the side it lies in: one pass over the survivors per split, O(n)
+    for keys spread over the range.
+    """
+    prev, nxt = lo_end, hi_end  # ends of the interval of level `base` / of the level after the crossing
+    while stop > start:
+        pivot = 0.5 * (kmin + kmax) if kmax > kmin else kmax
+        i, left, left_max, right_min = start, 0.0, kmin, kmax
+        for q in range(start, stop):  # keys <= pivot to the front
+            k = keys[q]
+            if k <= pivot:
+                keys[q], weights[q], keys[i], weights[i] = keys[i], weights[i], k, weights[q]
+                left += weights[i]
+                left_max = max(left_max, k)
+                i += 1
+            else:
+                right_min = min(right_min, k)
+        if kmax == kmin:  # one step left: level base below kmin, base + left from it on
+            if target - base <= base + left - target:
+                return 0.5 * (prev + kmin)
+            return hi_end if nxt >= hi_end else 0.5 * (kmin + nxt)
+        if base + left >= target:  # the crossing is among the keys <= pivot
+            nxt, stop, kmax = right_min, i, left_max
+        else:
+            base += left
+            prev, start, kmin = left_max, i, right_min
+    return hi_end if nxt >= hi_end else 0.5 * (prev + nxt)  # target at or beyond the last level
+
+
+@njit(cache=True)
+def solve_input(alpha, beta, mu, g, target, lo, hi):
+    """The input in ``[lo, hi]`` whose relays, switched from ``g``, give the weighted sum nearest ``target``.
+
+    With ``mu >= 0`` the sum after one more sample is a non-decreasing staircase in
+    that sample's input: flat between the largest ``beta`` of the relays up and the
+    least ``alpha`` of those down, rising at each down relay's ``alpha``, falling
+    below each up relay's ``beta``. The step nearest ``target`` is found in O(relays)
+    (:func:`_nearest_step`) and the middle of its interval returned (any input
+    there gives it), the range end for the top or bottom level. ``g`` is not modified.
+    """
+    m = alpha.shape[0]
+    keys = np.empty(m)  # rising candidates from the front, falling ones (mirrored, x -> -x) from the back
+    weights = np.empty(m)
+    now, flat_lo, flat_hi = 0.0, lo, hi
+    up, down = 0, m
+    rise_min, rise_max, fall_min, fall_max = np.inf, -np.inf, np.inf, -np.inf
+    for i in range(m):
+        now += mu[i] * g[i]
+        if g[i] > 0:
+            flat_lo = max(flat_lo, beta[i])
+            if beta[i] > lo:  # switches down below beta
+                down -= 1
+                keys[down], weights[down] = -beta[i], 2.0 * mu[i]
+                fall_min = min(fall_min, -beta[i])
+                fall_max = max(fall_max, -beta[i])
+        else:
+            flat_hi = min(flat_hi, alpha[i])
+            if alpha[i] <= hi:  # switches up at alpha
+                keys[up], weights[up] = alpha[i], 2.0 * mu[i]
+                rise_min = min(rise_min, alpha[i])
+                rise_max = max(rise_max, alpha[i])
+                up += 1
+    if target >= now:
+        return _nearest_step(keys, weights, 0, up, rise_min, rise_max, now, target, flat_lo, hi)
+    return -_nearest_step(keys, weights, down, m, fall_min, fall_max, -now, -target, -flat_hi, -lo)
+
+
+@njit(cache=True)
+def _invert(alpha, beta, mu, y, state, lo, hi):
+    out = np.empty(y.shape[0])
+    g = state.copy()
+    for k in range(y.shape[0]):
+        out[k] = solve_input(alpha, beta, mu, g, y[k], lo, hi)
+        switch(alpha, beta, g, out[k])
+    return out, g
+
+
+@njit(cache=True)
 def _weighted(alpha, beta, mu, x, state, by_alpha, by_beta):
     # After a sample at xp every relay with alpha <= xp is up and every one with
     # beta > xp down, so the next sample switches only those with alpha in (xp, x]
@@ -184,6 +268,17 @@ class PreisachModel:
                          np.argsort(self.alpha, kind="stable"), np.argsort(self.beta, kind="stable"))
         return y + self.offset, g
 
+    @property
+    def invertible(self) -> bool:
+        """Every relay weight non-negative: the output is then non-decreasing in each sample's input."""
+        return bool(np.all(self.mu >= 0.0))
+
+    def inverse(self) -> "InversePreisach":
+        """The numerical inverse (output to input)."""
+        if not self.invertible:
+            raise ValueError("Preisach model is not invertible: a relay weight is negative")
+        return InversePreisach(self)
+
     def to_params(self) -> dict:
         return {"alpha": self.alpha.tolist(), "beta": self.beta.tolist(), "mu": self.mu.tolist(),
                 "offset": self.offset}
@@ -191,6 +286,52 @@ class PreisachModel:
     @classmethod
     def from_params(cls, d: dict) -> "PreisachModel":
         return cls(alpha=d["alpha"], beta=d["beta"], mu=d["mu"], offset=d["offset"])
+
+
+@dataclass(frozen=True, eq=False)
+class InversePreisach:
+    """Inverse of a :class:`PreisachModel`, output to input, solved per sample (:func:`solve_input`).
+
+    The state is the forward relay states; each sample's input is one in the
+    identified range [-1, 1] whose switched relays give the output nearest the
+    target (:func:`solve_input`), and the relays then switch with it. The forward
+    model is a staircase in each sample's input, so ``forward(inverse(y))`` is the
+    reachable level nearest ``y``: ``y`` itself only where ``y`` is a level.
+    """
+
+    forward: PreisachModel
+    kind: ClassVar[str] = "inverse-preisach"
+    #: The identified input range: the inverse never leaves it.
+    x_range: ClassVar[tuple[float, float]] = (-1.0, 1.0)
+
+    def init(self, y0: float, forward_state: np.ndarray | None = None) -> np.ndarray:
+        """Relay states at the first sample: ``forward_state`` when given, else relaxed at the input whose
+        relays, coming up from the bottom of the range, give ``y0``."""
+        if forward_state is not None:
+            return np.asarray(forward_state, dtype=np.int8).copy()
+        f = self.forward
+        x0 = solve_input(f.alpha, f.beta, f.mu, f.init(self.x_range[0]), float(y0) - f.offset, *self.x_range)
+        return f.init(x0)
+
+    def step(self, state: np.ndarray, y: float) -> tuple[np.ndarray, float]:
+        """One sample: the input giving output ``y``, and the switched relays."""
+        x, s = self.predict(np.array([float(y)]), state)
+        return s, float(x[0])
+
+    def predict(self, y: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Input sequence that produces ``y`` (to the staircase's levels); ``(x, final_state)``."""
+        f = self.forward
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        if state is None:
+            state = self.init(y[0])
+        return _invert(f.alpha, f.beta, f.mu, y - f.offset, np.asarray(state, dtype=np.int8), *self.x_range)
+
+    def to_params(self) -> dict:
+        return {"forward": self.forward.to_params()}
+
+    @classmethod
+    def from_params(cls, d: dict) -> "InversePreisach":
+        return cls(PreisachModel.from_params(d["forward"]))
 
 
 def fit_preisach(x: np.ndarray, y: np.ndarray, n_h: int = N_H) -> PreisachModel:

@@ -125,8 +125,8 @@ def test_session_recovers_lag_delay_and_an_invertible_model(session_60s):
     assert dyn.delay_s - 1 / RATE == pytest.approx(DELAY, rel=0.05)
     assert dyn.noise_lpm == pytest.approx(0.5, rel=0.2)
     est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct, res.working_range.hi_pct,
-                   dyn, RATE, kinds=("pi", "preisach"))
-    assert est.chosen == "pi" and est.results["pi"].invertible and not est.results["preisach"].invertible
+                   dyn, RATE, kinds=("pi", "preisach-cont"))
+    assert est.chosen == "pi" and est.results["pi"].invertible and not est.results["preisach-cont"].invertible
     # held-out steps: the twin is a PI behind this lag and delay, so little beyond the sensor noise is left
     assert est.results["pi"].validation.rmse < 4 * dyn.noise_lpm
 

@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from controller.laws.feedforward import INVERTIBLE
 from models.recording import read_recording
 from tests.zenoh_helpers import ROOT, client_session, free_port, rows, valvectl, wait_for
 
@@ -68,7 +69,7 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
     assert ident.returncode == 0, se
     summ = json.loads((out / "identify.json").read_text())
     rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p50"] * 1e-6
-    assert not summ["aborted"] and summ["model"] in ("pi", "pi-asym", "pi-mod")
+    assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
     assert summ["duration_s"] == pytest.approx(12.0, abs=0.1)
     assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)
     assert 0.8 * DELAY <= summ["delay_s"] <= 1.2 * DELAY + rt_s

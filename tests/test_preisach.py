@@ -1,4 +1,4 @@
-"""The discrete Preisach model: relay responses, wiping-out, congruency, NNLS recovery."""
+"""The discrete Preisach model: relay responses, wiping-out, congruency, NNLS recovery, numerical inverse."""
 from __future__ import annotations
 
 import json
@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 from models.fitting import fit_model
 from models.model import load_model, save_model
 from models.preisach import (PreisachModel, fit_preisach, grid, levels, relaxed_state, relay_response,
-                             relay_response_numpy)
+                             relay_response_numpy, solve_input)
 from tests.conftest import growing_sine
 
 
@@ -126,3 +126,75 @@ def test_params_and_model_file_round_trip_exactly(tmp_path):
     np.testing.assert_array_equal(back.mu, model.core.mu)
     save_model(model, tmp_path / "m.json")
     np.testing.assert_array_equal(load_model(tmp_path / "m.json").predict(duty)[0], model.predict(duty)[0])
+
+
+# -- the numerical inverse (feedforward) --------------------------------------
+
+def _level(m: PreisachModel, g: np.ndarray, x: float) -> float:
+    """The weighted sum after input ``x`` from relay states ``g``, by the plain numpy relay update."""
+    return float(m.mu @ relay_response_numpy(m.alpha, m.beta, np.array([x]), g)[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=8), st.floats(-1.5, 1.5))
+def test_inverse_gives_the_reachable_level_nearest_the_target(history, target):
+    """Every level one more sample can reach is the level at some switching level (or just below
+    one, or a range end): the inverse's input gives the one nearest the target."""
+    m = known()
+    g = m.init(history[0])
+    for x in history:
+        g = relay_response_numpy(m.alpha, m.beta, np.array([x]), g)[0]
+    x = solve_input(m.alpha, m.beta, m.mu, g, target, -1.0, 1.0)
+    assert -1.0 <= x <= 1.0
+    inputs = np.concatenate([m.alpha, np.nextafter(m.beta, -np.inf), m.beta, [-1.0, 1.0]])
+    reachable = [_level(m, g, u) for u in inputs[(inputs >= -1.0) & (inputs <= 1.0)]]
+    assert abs(_level(m, g, x) - target) == pytest.approx(min(abs(v - target) for v in reachable), abs=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=60))
+def test_forward_of_inverse_reproduces_every_output_of_the_model(x):
+    """The model's own outputs are levels: the inverse finds each exactly, and its relays follow."""
+    m = known()
+    y, _ = m.predict(np.array(x))
+    state = m.init(x[0])
+    x_back, _ = m.inverse().predict(y, state)
+    y_back, _ = m.predict(x_back, state)
+    np.testing.assert_allclose(y_back, y, atol=1e-12)
+
+
+def test_inverse_beyond_the_levels_asks_for_the_range_ends():
+    m = known()
+    inv = m.inverse()
+    top, _ = m.predict(np.array([1.0]), m.init(0.0))
+    x, _ = inv.predict(np.array([top[0] + 0.5, -5.0]), m.init(0.0))
+    np.testing.assert_array_equal(x, [1.0, -1.0])
+
+
+def test_negative_weights_have_no_inverse():
+    m = known()
+    bad = PreisachModel(alpha=m.alpha, beta=m.beta, mu=-m.mu, offset=0.0)
+    assert not bad.invertible
+    with pytest.raises(ValueError, match="not invertible"):
+        bad.inverse()
+
+
+def test_feedforward_inverts_the_relays_as_the_models_inverse_does():
+    """controller.laws.feedforward: the loop's inverse from the memory the forward model keeps."""
+    from controller.laws import feedforward as ffw
+    from models.model import FittedModel
+    from models.preprocess import Scaling
+
+    core = known()
+    model = FittedModel("preisach", core, Scaling(55.0, 17.0), Scaling(98.0, 86.0), inverse=core.inverse())
+    duty = 55.0 + 16.0 * np.sin(np.linspace(0.0, 14.0, 300)) * np.linspace(0.2, 1.0, 300)
+    flow, _ = model.predict(duty)
+    bank = ffw.bank(model, batch=2)
+    s = ffw.init(bank, duty[0])
+    inv_state = core.init((duty[0] - 55.0) / 17.0)
+    for k in range(len(duty)):
+        inv_state, expected = model.inverse.step(inv_state, (flow[k] - 98.0) / 86.0)
+        u = ffw.invert(bank, s, np.full(2, flow[k]))
+        np.testing.assert_allclose(u, 55.0 + 17.0 * expected, rtol=0, atol=1e-9)
+        s, q = ffw.step(bank, s, u)
+        np.testing.assert_allclose(q, flow[k], atol=1e-9)  # the model's outputs are levels it reaches exactly

@@ -201,10 +201,10 @@ class Command(NamedTuple):
 
 @njit(cache=True)
 def _advance(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0,
-             dc, dh, fc, fh, margin, X, Y, H, pos, ref, meas, ref_ff, dt, out):
+             dc, dh, fc, fh, margin, beta, X, Y, H, pos, ref, meas, ref_ff, dt, out):
     # the bank's arrays come as separate arguments: the dispatcher types arrays fast, tuples slowly
     bank = (method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh,
-            margin)
+            margin, beta)
     work = np.empty(Y.shape[1])  # the inverse's scratch
     L = H.shape[1]
     k_old = pos[0]

@@ -4,10 +4,13 @@ A :class:`ModelBank` holds, per candidate, an invertible hysteresis model in
 physical units, taken from a model file (:func:`models.model.load_model`) of
 any invertible kind: ``pi`` (Eq. 1-4 forward, Eq. 5-7 inverse), ``pi-asym``
 (generalized play operators; inverse solved per sample to rounding,
-:mod:`models.pi_asym`) or ``pi-mod`` (either play operators, then a
+:mod:`models.pi_asym`), ``pi-mod`` (either play operators, then a
 dead-zone superposition inverted in closed form; the plays' inverse as
-above, :mod:`models.pi_mod`). Every kind runs the one play operator of
-:mod:`models.play` and the one inverse of :func:`models.pi_mod.solve`.
+above, :mod:`models.pi_mod`) or ``preisach`` (relays; the input whose
+switched relays give the level nearest the reference, found in O(relays)
+per step, :func:`models.preisach.solve_input`). The PI family runs the one
+play operator of :mod:`models.play` and the one inverse of
+:func:`models.pi_mod.solve`.
 
 Interface (what the control laws call; arrays of shape (B,)):
 
@@ -43,12 +46,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from models import pi_asym, pi_mod, play
+from models import pi_asym, pi_mod, play, preisach
 from models.model import FittedModel
 
-#: Kinds the feedforward inverts, and how: closed form (Eq. 7 family) or solved per sample
-#: (a ``pi-mod`` with generalized plays, ``a > 0``, is solved per sample too).
-INVERTIBLE = {"pi": 0, "pi-mod": 0, "pi-asym": 1}
+#: Kinds the feedforward inverts, and how: closed form (Eq. 7 family), plays solved per sample
+#: (a ``pi-mod`` with generalized plays, ``a > 0``, too) or Preisach relays.
+INVERTIBLE = {"pi": 0, "pi-mod": 0, "pi-asym": 1, "preisach": 2}
 #: Default gap between the ready duty and the cracking duty, %.
 READY_MARGIN_PCT = 2.0
 
@@ -61,9 +64,10 @@ class ModelBank:
     ----------
     method : ndarray of int, shape (B,)
         0: closed-form inverse (``pi``, ``pi-mod`` with ``a = 0``); 1: solved per sample (``pi-asym``,
-        ``pi-mod`` with ``a > 0``).
+        ``pi-mod`` with ``a > 0``); 2: Preisach relays.
     r, w : ndarray, shape (B, n)
-        Play thresholds and weights (Eq. 2, Eq. 4).
+        Play thresholds and weights (Eq. 2, Eq. 4); for relays, their up-switching levels
+        ``alpha`` and weights ``mu``.
     a, p : ndarray, shape (B,)
         Descending-threshold envelope of ``pi-asym`` and ``pi-mod`` (``a = 0``: Eq. 1).
     h, g : ndarray, shape (B, k)
@@ -82,6 +86,8 @@ class ModelBank:
         Scalings, ``u = (x - center) / half``.
     ready_margin_pct : ndarray, shape (B,)
         Ready duty below the cracking duty, % (see the module docstring).
+    beta : ndarray, shape (B, n) or (B, 0)
+        Relays' down-switching levels (method 2; none for the PI family).
     """
 
     method: np.ndarray
@@ -104,6 +110,7 @@ class ModelBank:
     flow_center: np.ndarray
     flow_half: np.ndarray
     ready_margin_pct: np.ndarray
+    beta: np.ndarray
 
     @property
     def batch(self) -> int:
@@ -121,7 +128,12 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
         raise ValueError(f"model kind {model.kind!r} has no inverse for feedforward "
                          f"(one of {', '.join(INVERTIBLE)})")
     core = model.core
-    n = len(core.r)
+    if model.kind == "preisach":  # relays: up-switching levels and weights where the plays keep theirs
+        core.inverse()  # refused when a relay weight is negative
+        r, w, beta = core.alpha, core.mu, core.beta
+    else:
+        r, w, beta = core.r, core.w, np.zeros(0)
+    n = len(r)
     ident_h, ident_g = np.zeros(1), np.ones(1)
     a, p, floor, closed = 0.0, 1.0, -np.inf, -np.inf
     h, g, h_inv, g_inv = ident_h, ident_g, ident_h, ident_g
@@ -129,7 +141,7 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
     method = INVERTIBLE[model.kind]
     if model.kind == "pi-asym":
         a, p = core.a, core.p
-    else:
+    elif model.kind != "preisach":
         x0 = core.y0
         inv = model.inverse if model.inverse is not None else core.inverse()
         if model.kind == "pi":
@@ -147,11 +159,11 @@ def bank(model: FittedModel, batch: int = 1, ready_margin_pct: float = READY_MAR
 
     xs, ys = model.x_scale, model.y_scale
     return ModelBank(
-        method=np.full(batch, method, dtype=np.int64), r=rows(core.r), w=rows(core.w),
+        method=np.full(batch, method, dtype=np.int64), r=rows(r), w=rows(w),
         a=col(a), p=col(p), h=rows(h), g=rows(g), offset=col(core.offset), floor=col(floor),
         r_inv=rows(r_inv), w_inv=rows(w_inv), h_inv=rows(h_inv), g_inv=rows(g_inv), closed=col(closed),
         x0=rows(x0), duty_center=col(xs.center), duty_half=col(xs.half_range), flow_center=col(ys.center),
-        flow_half=col(ys.half_range), ready_margin_pct=col(ready_margin_pct),
+        flow_half=col(ys.half_range), ready_margin_pct=col(ready_margin_pct), beta=rows(beta),
     )
 
 
@@ -162,19 +174,28 @@ def stack(banks: list[ModelBank]) -> ModelBank:
 
 
 def init(bank: ModelBank, duty0_pct) -> np.ndarray:
-    """Operator memory at the first duty (shape (B,) or scalar), Eq. (3)."""
+    """Operator memory at the first duty (shape (B,) or scalar), Eq. (3); relays relaxed there."""
     d = np.broadcast_to(np.asarray(duty0_pct, dtype=np.float64), (bank.batch,))
     u = np.clip((d - bank.duty_center) / bank.duty_half, -1.0, 1.0)
-    return play.init(bank.r, u[:, None], bank.x0)
+    memory = play.init(bank.r, u[:, None], bank.x0)
+    for j in np.flatnonzero(bank.method == 2):
+        memory[j] = preisach.relaxed_state(bank.r[j], bank.beta[j], u[j])
+    return memory
 
 
 @njit(cache=True, inline="always")
 def _forward(bk, j, state, d):
     """Model flow (L/min) of candidate j after duty ``d``; advances ``state`` (its operator memory)."""
     (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0,
-     dc, dh, fc, fh, margin) = bk
+     dc, dh, fc, fh, margin, beta) = bk
     u = min(max((d - dc[j]) / dh[j], -1.0), 1.0)
-    acc = play.bank_step(r[j], w[j], pi_asym.down_scale(u, a[j], p[j]), state, u)
+    if method[j] == 2:
+        preisach.switch(r[j], beta[j], state, u)
+        acc = 0.0
+        for i in range(state.shape[0]):
+            acc += w[j, i] * state[i]
+    else:
+        acc = play.bank_step(r[j], w[j], pi_asym.down_scale(u, a[j], p[j]), state, u)
     y = max(pi_mod.dead_zone(h[j], g[j], acc) + offset[j], floor[j])
     below = min(d - (dc[j] - dh[j]), 0.0)
     return max(y * fh[j] + fc[j] + fh[j] / dh[j] * below, 0.0)  # no reverse flow through a closed valve
@@ -184,19 +205,24 @@ def _forward(bk, j, state, d):
 def _solve(bk, j, state, work, q, closed):
     """Duty (%) that takes candidate j's model from ``state`` to flow ``q`` (L/min); ``state`` unchanged."""
     (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, _, x0,
-     dc, dh, fc, fh, margin) = bk
+     dc, dh, fc, fh, margin, beta) = bk
     t = min(max((q - fc[j]) / fh[j], -1.0), 1.0)  # the model's flow range; above it: saturated
-    u = pi_mod.solve(r[j], w[j], a[j], p[j], r_inv[j], w_inv[j], h_inv[j], g_inv[j], offset[j], closed, -1.0,
-                     method[j] == 0, state, work, t)
+    if method[j] == 2:
+        u = preisach.solve_input(r[j], beta[j], w[j], state, t - offset[j], -1.0, 1.0)
+    else:
+        u = pi_mod.solve(r[j], w[j], a[j], p[j], r_inv[j], w_inv[j], h_inv[j], g_inv[j], offset[j], closed, -1.0,
+                         method[j] == 0, state, work, t)
     u = min(u, 1.0)
     below = min(q - (fc[j] - fh[j]), 0.0)  # below the flow range: the range's average gain
     return u * dh[j] + dc[j] + dh[j] / fh[j] * below
 
 
 @njit(cache=True)
-def _step(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, state, duty, out_state, flow):
+def _step(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, beta,
+          state, duty, out_state, flow):
     # the bank's arrays as separate arguments: the dispatcher types arrays fast, tuples slowly
-    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin)
+    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin,
+          beta)
     for j in range(duty.shape[0]):
         out_state[j] = state[j]
         flow[j] = _forward(bk, j, out_state[j], duty[j])
@@ -220,8 +246,10 @@ def forward_one(bk, j, state, duty):
 
 
 @njit(cache=True)
-def _invert(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin, state, ref, out):
-    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin)
+def _invert(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin,
+            beta, state, ref, out):
+    bk = (method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh, margin,
+          beta)
     work = np.empty(state.shape[1])
     for j in range(ref.shape[0]):
         out[j] = invert_one(bk, j, state[j], work, ref[j])
