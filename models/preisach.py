@@ -77,8 +77,11 @@ def switch(alpha, beta, g, xk):
 def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, hi_end):
     """Input where the increasing staircase ``base + sum_{keys_i <= x} weights_i`` over
     ``keys[start:stop]`` (within ``[kmin, kmax]``; ``weights >= 0``; ``x`` in ``[lo_end, hi_end]``)
-    is at its level nearest ``target``: the middle of that level's interval, or ``hi_end`` for
-    the top level (nothing more to give). The entries are reordered in place.
+    is at its level nearest ``target``. A level's own value maps to the middle of its interval
+    (``hi_end`` for the top level: nothing more to give), and targets between two levels
+    linearly from there to the step between them, which the midpoint of the two levels
+    reaches: the input is continuous and non-decreasing in ``target``, and always on the
+    nearest level. The entries are reordered in place.
 
     The level crossing ``target`` is found by splitting the candidate keys at the middle of
     their range and keeping the side it lies in: one pass over the survivors per split, O(n)
@@ -97,10 +100,17 @@ def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, 
                 i += 1
             else:
                 right_min = min(right_min, k)
-        if kmax == kmin:  # one step left: level base below kmin, base + left from it on
-            if target - base <= base + left - target:
-                return 0.5 * (prev + kmin)
-            return hi_end if nxt >= hi_end else 0.5 * (kmin + nxt)
+        if kmax == kmin:  # the step: level base on [prev, kmin), base + left on [kmin, nxt)
+            low = 0.5 * (prev + kmin)
+            high = hi_end if nxt >= hi_end else 0.5 * (kmin + nxt)
+            half = base + 0.5 * left
+            if target <= base or left <= 0.0:
+                return low
+            if target >= base + left:
+                return high
+            if target < half:  # nearer the level below: inside its interval, up to the step
+                return low + (kmin - low) * (target - base) / (half - base)
+            return kmin + (high - kmin) * (target - half) / (base + left - half)
         if base + left >= target:  # the crossing is among the keys <= pivot
             nxt, stop, kmax = right_min, i, left_max
         else:
@@ -116,9 +126,10 @@ def solve_input(alpha, beta, mu, g, target, lo, hi):
     With ``mu >= 0`` the sum after one more sample is a non-decreasing staircase in
     that sample's input: flat between the largest ``beta`` of the relays up and the
     least ``alpha`` of those down, rising at each down relay's ``alpha``, falling
-    below each up relay's ``beta``. The step nearest ``target`` is found in O(relays)
-    (:func:`_nearest_step`) and the middle of its interval returned (any input
-    there gives it), the range end for the top or bottom level. ``g`` is not modified.
+    below each up relay's ``beta``. The level nearest ``target`` is found in O(relays)
+    and an input on it returned (:func:`_nearest_step`: continuous in ``target``; a
+    level itself gives the middle of its interval, the top or bottom level the range
+    end). ``g`` is not modified.
     """
     m = alpha.shape[0]
     keys = np.empty(m)  # rising candidates from the front, falling ones (mirrored, x -> -x) from the back
@@ -128,6 +139,8 @@ def solve_input(alpha, beta, mu, g, target, lo, hi):
     rise_min, rise_max, fall_min, fall_max = np.inf, -np.inf, np.inf, -np.inf
     for i in range(m):
         now += mu[i] * g[i]
+        if mu[i] == 0.0:  # switches nothing the output sees
+            continue
         if g[i] > 0:
             flat_lo = max(flat_lo, beta[i])
             if beta[i] > lo:  # switches down below beta

@@ -151,6 +151,27 @@ def test_inverse_gives_the_reachable_level_nearest_the_target(history, target):
     assert abs(_level(m, g, x) - target) == pytest.approx(min(abs(v - target) for v in reachable), abs=1e-12)
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=8), st.integers(0, 2**31))
+def test_inverse_is_continuous_and_non_decreasing_in_the_target(history, seed):
+    """Also across each level's value (where it maps to the middle of the level's interval) and
+    halfway between two (where it crosses the step), with relays of no weight among them (they
+    switch nothing the output sees)."""
+    truth = known()
+    mu = truth.mu * (np.random.default_rng(seed).random(len(truth.mu)) > 0.3)
+    m = PreisachModel(alpha=truth.alpha, beta=truth.beta, mu=mu)
+    g = m.init(history[0])
+    for x in history:
+        g = relay_response_numpy(m.alpha, m.beta, np.array([x]), g)[0]
+    levels_ = np.array(sorted({_level(m, g, u) for u in np.concatenate([m.alpha, np.nextafter(m.beta, -np.inf)])}))
+    edges = np.concatenate([levels_, 0.5 * (levels_[1:] + levels_[:-1])])  # each level, and halfway to the next
+    targets = np.sort(np.concatenate([np.linspace(-1.2, 1.2, 400), edges, edges + 1e-12, edges - 1e-12]))
+    x = np.array([solve_input(m.alpha, m.beta, m.mu, g, t, -1.0, 1.0) for t in targets])
+    assert np.all(np.diff(x) >= 0.0)
+    close = np.diff(targets) <= 1e-12
+    assert np.max(np.diff(x)[close], initial=0.0) < 1e-6
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=60))
 def test_forward_of_inverse_reproduces_every_output_of_the_model(x):
