@@ -35,6 +35,8 @@ import numpy as np
 from numba import njit
 from scipy.optimize import nnls
 
+from .pi_asym import InverseAsymmetricPI
+
 #: The paper's discretization: 50 levels, 1275 relays.
 N_H = 50
 
@@ -326,10 +328,8 @@ class InversePreisach:
         x0 = solve_input(f.alpha, f.beta, f.mu, f.init(self.x_range[0]), float(y0) - f.offset, *self.x_range)
         return f.init(x0)
 
-    def step(self, state: np.ndarray, y: float) -> tuple[np.ndarray, float]:
-        """One sample: the input giving output ``y``, and the switched relays."""
-        x, s = self.predict(np.array([float(y)]), state)
-        return s, float(x[0])
+    #: One sample: the input giving output ``y``, and the switched relays (through :meth:`predict`).
+    step = InverseAsymmetricPI.step
 
     def predict(self, y: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Input sequence that produces ``y`` (to the staircase's levels); ``(x, final_state)``."""
