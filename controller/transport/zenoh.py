@@ -32,6 +32,9 @@ from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_com
 RING = 16
 #: Time one poll of one key may spend on its samples, s (a 1 kHz step has 1000 us; the law needs ~100).
 DRAIN_BUDGET_S = 150e-6
+#: Largest Zenoh message a session takes in, bytes (a payload of MAX_PAYLOAD_BYTES plus key and headers, with room):
+#: Zenoh drops a larger one in its receive path, before assembling or delivering it.
+MAX_MESSAGE_BYTES = 4 * MAX_PAYLOAD_BYTES
 #: Auxiliary measurements a valve may publish, recording column -> key under ``vent/valve/{id}``
 #: (payloads as ``meas/flow``; ``value`` in the column's unit: supply pressure in bar gauge, coil temperature in °C).
 AUX_KEYS = {"supply_bar": "meas/supply", "coil_temp_c": "meas/coil_temp"}
@@ -51,7 +54,9 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
     ``--listen``/``--connect`` if given, else the controller listens on
     ``[zenoh] listen`` and connects to ``[zenoh] connect``, and any other
     party connects to the controller's listen endpoints (or to ``[zenoh]
-    connect`` when a router is configured there).
+    connect`` when a router is configured there). Every session takes in
+    messages of at most :data:`MAX_MESSAGE_BYTES` (Zenoh drops larger ones
+    unassembled) and no shared memory.
     """
     from models.recording import InputError
 
@@ -76,6 +81,12 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
             where = f"--{key}" if given is not None else f"{cfg.path}: zenoh.{key}"
             raise InputError(f"{where}: {eps} are not Zenoh endpoints (<protocol>/<address>, "
                              f"e.g. tcp/127.0.0.1:7447)") from None
+    # A flood of large payloads costs the receiving thread only the socket reads: Zenoh drops a message past
+    # max_message_size instead of assembling it (1 MB each) and queueing it for the loop. Shared memory
+    # would hand large payloads over outside that limit, and no DESIGN.md payload needs it (3 kB threshold).
+    conf.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    with contextlib.suppress(zenoh.ZError):  # a build without shared memory has nothing to turn off
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     if not os.path.exists(path):  # the retry settings of zenoh.json5, so any party may start first
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
