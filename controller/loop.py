@@ -27,10 +27,10 @@ Per step (one period):
    ``status_hz``, record row;
 6. compute time = end of the step - wake.
 
-Allocation: the loop's per-step records are preallocated arrays; the laws,
-pure functions over arrays, return fresh one-element arrays each step (a few
-dozen small numpy objects, microseconds, collected by reference counting
-with the garbage collector off).
+Allocation: the loop's per-step records are preallocated arrays; the law of
+the word in force advances in place in one compiled call
+(:class:`controller.laws.control.Live`), and the simulated valve likewise
+(:class:`plant_sim.plant.RunningPlant`), so a step allocates no arrays.
 
 The clock is injectable: :class:`RealClock` for the live loop,
 :class:`SimClock` for tests and fast simulations (time jumps to each deadline).
@@ -365,7 +365,7 @@ class Loop:
                     if cmd is None:  # no law could compute a duty: the fault state commands the safe duty
                         state, ctrl = FAULT, None
                     else:
-                        duty, ff, fb = float(cmd.duty_pct[0]), float(cmd.ff_pct[0]), float(cmd.fb_pct[0])
+                        duty, ff, fb, _ = cmd
                 if state != RUNNING:
                     duty, ff, fb = safe, safe, 0.0
 

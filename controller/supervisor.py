@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .laws import control, kalman
+from .laws import control
 from .watchdog import Faults
 
 #: The controller a failing law hands over to: feedback on the measured flow around the feedforward.
@@ -76,11 +76,14 @@ class Supervisor:
         if word not in laws:
             raise ValueError(f"controller {word!r} not among {', '.join(laws)}")
         self.laws, self.word, self.settings = dict(laws), word, settings
+        self._live = {w: control.Live(p) for w, p in self.laws.items()}
         self.pending: str | None = None
         self.mismatch_lpm = math.nan
         self._innov_lp = 0.0
         self._beyond_s = 0.0
         self._model_lag = math.nan  # the model flow through the valve's lag, L/min
+        self._gain_dt = self._gain = math.nan
+        self._kf_a = {w: float(p.kf.a[0]) if p.kf is not None else math.nan for w, p in self.laws.items()}
 
     @classmethod
     def fixed(cls, params: control.ControllerParams) -> "Supervisor":
@@ -94,17 +97,18 @@ class Supervisor:
     def warm_up(self, dt_s: float, duty_pct: float) -> None:
         """One throw-away pass of every law through the live path (step with the Kalman prediction and its
         health checks, resume, transfer), so that loading compiled kernels (numba's cache: milliseconds per
-        kernel and signature) never stalls a live step. The supervisor is left as it was."""
+        kernel and signature) never stalls a live step. The supervisor is left as it was (the laws' states
+        are set again by :meth:`init`)."""
         saved = (self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag)
         zero = np.zeros(1)
         try:
             for word, p in self.laws.items():
                 self.word = word
-                ctrl = control.init(p, 0.0, duty_pct)
-                new, _ = self._law_step(ctrl, zero, zero, dt_s, zero, 0.0, Faults())
-                control.resume(p, new, 0.0, duty_pct)
+                ctrl = self.init(0.0, duty_pct)
+                self._law_step(0.0, 0.0, dt_s, 0.0, 0.0, Faults())
+                control.resume(p, ctrl, 0.0, duty_pct)
                 for other in self.laws.values():
-                    control.transfer(other, new, 0.0, zero)
+                    control.transfer(other, ctrl, 0.0, zero)
         finally:
             self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag = saved
 
@@ -117,11 +121,11 @@ class Supervisor:
 
     def init(self, meas_lpm: float, duty_pct: float) -> control.ControllerState:
         self._reset()
-        return control.init(self.params, meas_lpm, duty_pct)
+        return self._live[self.word].load(control.init(self.params, meas_lpm, duty_pct))
 
     def resume(self, ctrl, meas_lpm: float, duty_pct: float) -> control.ControllerState:
         self._reset()
-        return control.resume(self.params, ctrl, meas_lpm, duty_pct)
+        return self._live[self.word].load(control.resume(self.params, ctrl, meas_lpm, duty_pct))
 
     def _reset(self) -> None:
         self._innov_lp, self._beyond_s, self.mismatch_lpm, self._model_lag = 0.0, 0.0, math.nan, math.nan
@@ -132,36 +136,38 @@ class Supervisor:
         self._reset()
         if old is self.params:
             return ctrl
-        return control.transfer(self.params, ctrl, ref_lpm, np.array([meas_lpm]))
+        return self._live[word].load(control.transfer(self.params, ctrl, ref_lpm, np.array([meas_lpm])))
 
     def step(self, ctrl, ref_lpm: float, meas_lpm: float, dt_s: float, ref_ff_lpm: float, t_s: float, faults):
-        """One period of the word in force: ``(state, Command)``, or ``(state, None)`` when no law could run."""
+        """One period of the word in force: ``(state, (duty, ff, fb, limit))`` in %, or ``(state, None)``
+        when no law could run (the state is then the one before the step)."""
         if self.pending is not None:
             ctrl = self._switch(self.pending, ctrl, ref_lpm, meas_lpm)
             self.pending = None
-        ref, meas, ref_ff = np.array([ref_lpm]), np.array([meas_lpm]), np.array([ref_ff_lpm])
-        new, cmd = self._law_step(ctrl, ref, meas, dt_s, ref_ff, t_s, faults)
+        cmd = self._law_step(ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults)
+        live = self._live[self.word]
         if cmd is not None or self.word == FALLBACK or FALLBACK not in self.laws:
-            return (new, cmd) if cmd is not None else (ctrl, None)
+            return live.state, cmd
         faults.add("fallback", t_s)
-        ctrl = self._switch(FALLBACK, ctrl, ref_lpm, meas_lpm)
-        new, cmd = self._law_step(ctrl, ref, meas, dt_s, ref_ff, t_s, faults)
-        return (new, cmd) if cmd is not None else (ctrl, None)
+        ctrl = self._switch(FALLBACK, live.state, ref_lpm, meas_lpm)
+        cmd = self._law_step(ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults)
+        return self._live[self.word].state, cmd
 
-    def _law_step(self, ctrl, ref, meas, dt_s, ref_ff, t_s, faults):
-        """The law's step and its health: the command, or None (with the fault counted) when it failed."""
-        p = self.params
-        predicted = kalman.predict(p.kf, ctrl.kf) if p.kf is not None else None
-        new, cmd = control.step(p, ctrl, ref, meas, dt_s, ref_ff)
-        if not math.isfinite(float(cmd.duty_pct[0])):  # never command what the law could not compute
+    def _law_step(self, ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults):
+        """The law's step and its health: the command, or None (with the fault counted and the step
+        undone) when it failed."""
+        live = self._live[self.word]
+        duty, ff, fb, limit, predicted, m = live.step(ref_lpm, meas_lpm, ref_ff_lpm, dt_s)
+        if not math.isfinite(duty):  # never command what the law could not compute
             faults.add("bad_command", t_s)
-            return new, None
-        if predicted is not None:
+            live.rollback()
+            return None
+        a = self._kf_a[self.word]
+        if a == a:  # ff+kf: the filter's health and the model's flow error
             s = self.settings
-            z = float(meas[0])
-            g = 1.0 - math.exp(-dt_s / s.tau_s)
-            self._innov_lp += (z - float(predicted[0]) - self._innov_lp) * g
-            a, m = float(p.kf.a[0]), float(kalman.delayed_model(p.kf, ctrl.kf)[0])
+            z = meas_lpm
+            g = self._gain if self._gain_dt == dt_s else self._set_gain(dt_s)
+            self._innov_lp += (z - predicted - self._innov_lp) * g
             lag = m if self._model_lag != self._model_lag else a * self._model_lag + (1.0 - a) * m
             self._model_lag = lag
             self.mismatch_lpm = z - lag if self.mismatch_lpm != self.mismatch_lpm else (
@@ -169,5 +175,11 @@ class Supervisor:
             self._beyond_s = self._beyond_s + dt_s if abs(self._innov_lp) > s.innovation_limit_lpm else 0.0
             if self._beyond_s >= s.innovation_hold_s - 1e-12 or not math.isfinite(self._innov_lp):
                 faults.add("innovation_diverged", t_s)
-                return new, None
-        return new, cmd
+                live.rollback()
+                return None
+        return duty, ff, fb, limit
+
+    def _set_gain(self, dt_s: float) -> float:
+        """The low-pass gain per period of ``dt_s`` (computed once per period length)."""
+        self._gain_dt, self._gain = dt_s, 1.0 - math.exp(-dt_s / self.settings.tau_s)
+        return self._gain

@@ -322,23 +322,33 @@ def advance(duty, k0, settle, P, MP, EV, keys, ms_in, x_in, buf_in, ms_out, x_ou
     x_out[:] = x_in
     buf_out[:] = buf_in
     for n in range(N):
-        k = k0 + n
         for b in range(B):
-            Pb = P[b]
-            xb = x_out[b]
-            d_eff, temp = _coil(Pb, xb, duty[n, b], settle)
-            u = (d_eff - Pb[XC]) / Pb[XH]
-            uc = min(max(u, -1.0), 1.0)
-            q_model = _model(Pb, MP[b], EV[b], ms_out[b], xb, uc) * Pb[YH] + Pb[YC]
-            if u < -1.0:  # below the identified range: closing along the model's mean gain
-                q_model += Pb[GAIN_LO] * (d_eff - (Pb[XC] - Pb[XH]))
-            q = _creep(Pb, xb, uc, q_model, settle)
-            q = _dead_zone(Pb, d_eff, q)
-            q, supply = _supply(Pb, xb, keys[b, 1], k, q, settle)
-            q = _saturation(Pb, xb, q)
-            qv = _dynamics(Pb, xb, q, settle)
-            q_sensor = _delay(Pb, buf_out[b], k, qv, settle)
-            out[n, b, O_FLOW] = _sensor(Pb, keys[b, 0], k, q_sensor)
-            out[n, b, O_TRUE] = q_sensor
-            out[n, b, O_SUPPLY] = supply
-            out[n, b, O_TEMP] = temp
+            o = out[n, b]
+            o[O_FLOW], o[O_TRUE], o[O_SUPPLY], o[O_TEMP] = plant_step(
+                P[b], MP[b], EV[b], keys[b], ms_out[b], x_out[b], buf_out[b], k0 + n, duty[n, b], settle)
+
+
+@njit(cache=True, inline="always")
+def plant_step(Pb, MPb, EVb, keys_b, msb, xb, bufb, k, d, settle):
+    """One plant, one step, its state in place (rows of :func:`advance`'s arrays; ``k`` the global
+    step, ``d`` the commanded duty, %): ``(measured flow, flow at the sensor, supply, coil temperature)``."""
+    d_eff, temp = _coil(Pb, xb, d, settle)
+    u = (d_eff - Pb[XC]) / Pb[XH]
+    uc = min(max(u, -1.0), 1.0)
+    q_model = _model(Pb, MPb, EVb, msb, xb, uc) * Pb[YH] + Pb[YC]
+    if u < -1.0:  # below the identified range: closing along the model's mean gain
+        q_model += Pb[GAIN_LO] * (d_eff - (Pb[XC] - Pb[XH]))
+    q = _creep(Pb, xb, uc, q_model, settle)
+    q = _dead_zone(Pb, d_eff, q)
+    q, supply = _supply(Pb, xb, keys_b[1], k, q, settle)
+    q = _saturation(Pb, xb, q)
+    qv = _dynamics(Pb, xb, q, settle)
+    q_sensor = _delay(Pb, bufb, k, qv, settle)
+    return _sensor(Pb, keys_b[0], k, q_sensor), q_sensor, supply, temp
+
+
+@njit(cache=True)
+def step_one(P, MP, EV, keys, ms, x, buf, k, duty):
+    """:func:`plant_step` of plant 0 of a batch, in place: the live loop's valve, stepped by one call
+    of few arguments (the dispatcher's cost grows with their number)."""
+    return plant_step(P[0], MP[0], EV[0], keys[0], ms[0], x[0], buf[0], k, duty, False)

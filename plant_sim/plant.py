@@ -474,8 +474,37 @@ class Plant:
         o = out[0, 0]
         return state, PlantOutput(float(o[0]), float(o[1]), float(o[2]), float(o[3]))
 
+    def running(self, state: PlantState) -> "RunningPlant":
+        """The valve from ``state`` on, advanced in place step by step (see :class:`RunningPlant`)."""
+        return RunningPlant(self._batch, state)
+
     def simulate(self, duty_pct: np.ndarray) -> dict[str, np.ndarray]:
         """A whole recording from rest at ``duty_pct[0]``: columns ``t_s, duty_pct, flow_lpm,
         true_flow_lpm, supply_bar, coil_temp_c`` (N,)."""
         cols = self._batch.simulate(np.asarray(duty_pct, dtype=np.float64)[None, :])
         return {k: (v if v.ndim == 1 else v[0]) for k, v in cols.items()}
+
+
+class RunningPlant:
+    """One valve advanced in place: :meth:`Plant.step` without its allocations, for a live loop.
+
+    The same kernel, on state arrays owned here (read and written in place) instead of fresh
+    ones per step; settings changed on the plant (:meth:`Plant.retune`) act from the next step.
+    """
+
+    def __init__(self, batch: BatchPlant, state: PlantState):
+        self._batch = batch
+        self.k = state.k
+        self._ms, self._x, self._buf = state.model.copy(), state.x.copy(), state.buf.copy()
+
+    @property
+    def state(self) -> PlantState:
+        """A copy of the present state."""
+        return PlantState(self.k, self._ms.copy(), self._x.copy(), self._buf.copy())
+
+    def step(self, duty_pct: float) -> PlantOutput:
+        """One step: command ``duty_pct`` (%), read the flow (L/min)."""
+        b = self._batch
+        out = K.step_one(b._P, b._MP, b._EV, b._keys, self._ms, self._x, self._buf, self.k, float(duty_pct))
+        self.k += 1
+        return PlantOutput(*out)

@@ -203,6 +203,11 @@ def protocol(name: str, rate_hz: float, duration_s: float | None = None, seed: i
 _KINDS = ("square", "ramp", "sine")
 
 
+def _pick(cond, a, b):
+    """``np.where`` for scalars."""
+    return a if cond else b
+
+
 @dataclass(frozen=True)
 class BreathProfile:
     """Inspiratory flow reference of a volume-controlled ventilator.
@@ -264,8 +269,8 @@ class BreathProfile:
         One law for both: scalars go through :mod:`math` (a few µs for the live loop),
         arrays through numpy.
         """
-        if np.ndim(t_s) == 0:
-            return self._law(float(t_s), min, math.sin, lambda c, a, b: a if c else b)
+        if isinstance(t_s, float) or np.ndim(t_s) == 0:
+            return self._law(float(t_s), min, math.sin, _pick)
         return self._law(np.asarray(t_s, dtype=np.float64), np.minimum, np.sin, np.where)
 
     def _law(self, t_s, minimum, sin, where):

@@ -91,15 +91,14 @@ def test_a_switch_with_a_tight_rate_limit_is_still_bumpless(cfg, model, tmp_path
 
 
 def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model, monkeypatch):
-    real_step = control.step
+    real_step = control.Live.step  # the live loop's step of a law
     clock = {"t": 0.0}
 
     def nan_after(t_fail):
-        def step(p, s, *a):
-            if p.mode == "ff+kf" and clock["t"] >= t_fail:  # the filter's bias estimate turns NaN
-                s = s.copy()
-                s.x[:, control.BIAS_EST] = np.nan
-            return real_step(p, s, *a)
+        def step(live, *a):
+            if live.state.mode == control.FF_KF and clock["t"] >= t_fail:  # the filter's bias estimate turns NaN
+                live.state.x[:, control.BIAS_EST] = np.nan
+            return real_step(live, *a)
         return step
 
     class Clocked(Modes):
@@ -107,7 +106,7 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
             clock["t"] = t_s
             super().command(duty_pct, t_s)
 
-    monkeypatch.setattr(control, "step", nan_after(0.5))
+    monkeypatch.setattr(control.Live, "step", nan_after(0.5))
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     i = int(np.searchsorted(c["t_s"], 0.5 - 1e-9)) + 1  # the first step whose law reads the NaN
@@ -120,13 +119,13 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
     # the fallback fails too: the fault state, with the safe duty
     kf_nan = nan_after(0.5)
 
-    def pid_nan(p, s, *a):
-        new, cmd = kf_nan(p, s, *a)
-        if p.mode == "ff+pid" and clock["t"] >= 0.7:
-            cmd = cmd._replace(duty_pct=cmd.duty_pct * np.nan)
-        return new, cmd
+    def pid_nan(live, *a):
+        duty, *rest = kf_nan(live, *a)
+        if live.state.mode == control.FF_PID and clock["t"] >= 0.7:
+            duty = np.nan
+        return (duty, *rest)
 
-    monkeypatch.setattr(control, "step", pid_nan)
+    monkeypatch.setattr(control.Live, "step", pid_nan)
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     after = c["t_s"] > 0.7 + 0.002
@@ -136,21 +135,21 @@ def test_a_non_finite_law_falls_back_to_ff_pid_then_to_the_safe_state(cfg, model
 
 def test_a_diverging_filter_hands_over_to_ff_pid(cfg, model, monkeypatch):
     """A filter whose flow estimate is scaled by 1.5 each step (a wrong gain) diverges: its innovation grows."""
-    real_step = control.step
+    real_step = control.Live.step  # the live loop's step of a law
     clock = {"t": 0.0}
 
-    def diverging(p, s, *a):
-        new, cmd = real_step(p, s, *a)
-        if p.mode == "ff+kf" and clock["t"] >= 0.4:
-            new.x[:, control.FLOW_EST] *= 1.5
-        return new, cmd
+    def diverging(live, *a):
+        out = real_step(live, *a)
+        if live.state.mode == control.FF_KF and clock["t"] >= 0.4:
+            live.state.x[:, control.FLOW_EST] *= 1.5
+        return out
 
     class Clocked(Modes):
         def command(self, duty_pct, t_s):
             clock["t"] = t_s
             super().command(duty_pct, t_s)
 
-    monkeypatch.setattr(control, "step", diverging)
+    monkeypatch.setattr(control.Live, "step", diverging)
     res = breath_run(cfg, model, "ff+kf", Clocked(plant(cfg)), 1.0)
     c = res.columns
     kinds = {f["kind"]: f["first_s"] for f in res.faults.to_list()}
@@ -280,5 +279,5 @@ def test_warm_up_loads_every_kernel_the_live_steps_use_and_leaves_the_supervisor
         sup.request(word)
         for i in range(3):
             ctrl, cmd = sup.step(ctrl, 40.0, 30.0 + i, 1e-3, 40.0, k * 0.01 + i * 1e-3, faults)
-        ctrl = sup.resume(ctrl, 31.0, float(cmd.duty_pct[0]))
+        ctrl = sup.resume(ctrl, 31.0, cmd[0])
     assert {f: len(f.signatures) for f in kernels} == before

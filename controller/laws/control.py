@@ -30,8 +30,9 @@ bias correction adds, ``invPI(F r - bias_hat) - invPI(F r)``); and
 One compiled kernel steps every word (:func:`advance`): it loops over the
 candidates and calls each law's one implementation, the numba functions of
 :mod:`.pid`, :mod:`.kalman`, :mod:`.limits` and :mod:`.feedforward`. The
-live loop calls it for its batch of one (microseconds a step), the sweep
-for hundreds of candidates at once. Parameters are packed once per
+live loop calls it for its batch of one through :class:`Live` (one call of
+a few arguments on one buffer: microseconds a step), the sweep for
+hundreds of candidates at once. Parameters are packed once per
 :class:`ControllerParams` (:attr:`ControllerParams.kernel`); the state is
 one matrix per batch plus the feedforward model's operator memory and the
 Kalman filter's model history, advanced in place by :func:`advance` and
@@ -272,6 +273,115 @@ def advance(k: Kernel, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.nda
     float64, ``k`` from :attr:`ControllerParams.kernel`.
     """
     _advance(k.mode, k.lead, k.P, *k.bank, s.x, s.forward, s.hist, s.pos, ref_lpm, meas_lpm, ref_ff_lpm, dt_s, out)
+
+
+@njit(cache=True, inline="always")
+def _rows(F, L, i):
+    """View ``i`` of the live buffer as a matrix (layout row ``i``: offset, rows, columns)."""
+    return F[L[i, 0]:L[i, 0] + L[i, 1] * L[i, 2]].reshape((L[i, 1], L[i, 2]))
+
+
+@njit(cache=True, inline="always")
+def _col(F, L, i):
+    """View ``i`` of the live buffer as a vector."""
+    return F[L[i, 0]:L[i, 0] + L[i, 1] * L[i, 2]]
+
+
+#: Rows of the live buffer's layout (:class:`Live`): 0 the parameters P, 1 to N_BANK - 1 the bank's
+#: float fields (row = field index), then the state, its saved copy, io; in the int buffer pos, its
+#: saved copy and the bank's method; out last.
+N_BANK = 21
+(_X, _FWD, _HIST, _X_SAVED, _FWD_SAVED, _HIST_SAVED, _IO, _POS, _POS_SAVED, _METHOD, _OUT) = range(N_BANK,
+                                                                                              N_BANK + 11)
+
+
+@njit(cache=True)
+def _live_step(mode, has_lead, F, I, L, ref_lpm, meas_lpm, ref_ff_lpm, dt):
+    # One argument per buffer instead of the kernel's 33: the dispatcher's per-argument cost
+    # (~0.15 us each) was most of a live step. Views by the layout of Live; the state is saved
+    # before it advances (Live.rollback), and the filter's prediction taken from the state before.
+    P = _rows(F, L, 0)
+    X, Y, H = _rows(F, L, _X), _rows(F, L, _FWD), _rows(F, L, _HIST)
+    pos = _col(I, L, _POS)
+    _rows(F, L, _X_SAVED)[:] = X
+    _rows(F, L, _FWD_SAVED)[:] = Y
+    _rows(F, L, _HIST_SAVED)[:] = H
+    _col(I, L, _POS_SAVED)[0] = pos[0]
+    predicted = m = np.nan
+    if mode == FF_KF:
+        m = H[0, (pos[0] - int(P[0, KF_DELAY])) % H.shape[1]]
+        predicted = kalman.prediction(P[0, KF_A], X[0, FLOW_EST], X[0, BIAS_EST], m)
+    io = _col(F, L, _IO)
+    io[0], io[1], io[2] = ref_lpm, meas_lpm, ref_ff_lpm
+    out = _rows(F, L, _OUT)
+    _advance(mode, has_lead, P, _col(I, L, _METHOD), _rows(F, L, 1), _rows(F, L, 2), _col(F, L, 3), _col(F, L, 4),
+             _rows(F, L, 5), _rows(F, L, 6), _col(F, L, 7), _col(F, L, 8), _rows(F, L, 9), _rows(F, L, 10),
+             _rows(F, L, 11), _rows(F, L, 12), _col(F, L, 13), _rows(F, L, 14), _col(F, L, 15), _col(F, L, 16),
+             _col(F, L, 17), _col(F, L, 18), _col(F, L, 19), _rows(F, L, 20), X, Y, H, pos, io[0:1], io[1:2],
+             io[2:3], dt, out)
+    return out[0, 0], out[0, 1], out[0, 2], out[0, 3], predicted, m
+
+
+class Live:
+    """One controller (batch of one) advanced in place by one compiled call: the live loop's :func:`step`.
+
+    The parameters, the feedforward's model and the state live in one float and one
+    int buffer; :meth:`step` runs :func:`_advance` on views of them, so a step costs one
+    call of a few arguments and allocates nothing.
+
+    Parameters
+    ----------
+    p : ControllerParams
+        Batch of one.
+
+    Attributes
+    ----------
+    state : ControllerState
+        Views of the buffers: the state :meth:`step` advances.
+    """
+
+    def __init__(self, p: ControllerParams):
+        if p.batch != 1:
+            raise ValueError("Live steps one controller (batch of one)")
+        k = p.kernel
+        if len(k.bank) != N_BANK:
+            raise ValueError(f"the live layout has {N_BANK} bank fields, the feedforward {len(k.bank)}")
+        s = init(p, 0.0)
+        rows = [k.P, *k.bank[1:], s.x, s.forward, s.hist, s.x, s.forward, s.hist, np.zeros(3), s.pos, s.pos,
+                k.bank[0], np.zeros((1, 4))]  # in layout order
+        is_int = [a.dtype == np.int64 for a in rows]
+        self._F = np.zeros(sum(a.size for a, i in zip(rows, is_int) if not i))
+        self._I = np.zeros(sum(a.size for a, i in zip(rows, is_int) if i), dtype=np.int64)
+        layout, views, offset = [], [], {True: 0, False: 0}
+        for a, i in zip(rows, is_int):
+            shape = a.shape if a.ndim == 2 else (a.shape[0], 1)
+            o = offset[i]
+            view = (self._I if i else self._F)[o:o + a.size].reshape(shape)
+            view[:] = a.reshape(shape)
+            layout.append((o, *shape))
+            views.append(view if a.ndim == 2 else view[:, 0])
+            offset[i] += a.size
+        self._L = np.array(layout, dtype=np.int64)
+        self._mode, self._lead = k.mode, k.lead
+        self._saved = views[_X_SAVED], views[_FWD_SAVED], views[_HIST_SAVED], views[_POS_SAVED]
+        self.state = ControllerState(k.mode, views[_X], views[_FWD], views[_HIST], views[_POS])
+
+    def load(self, s: ControllerState) -> ControllerState:
+        """Make ``s`` (of the same controller) the state advanced from now on; returns :attr:`state`."""
+        x, fwd, hist, pos = self.state[1:]
+        x[:], fwd[:], hist[:], pos[:] = s.x, s.forward, s.hist, s.pos
+        return self.state
+
+    def step(self, ref_lpm: float, meas_lpm: float, ff_ref_lpm: float, dt_s: float) -> tuple:
+        """One period in place: ``(duty, ff, fb, limit, predicted, m)`` (%, and for ``ff+kf`` the filter's
+        flow predicted for this step and the delayed model flow ``m[k-1-d]`` before it, L/min; else nan)."""
+        return _live_step(self._mode, self._lead, self._F, self._I, self._L, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
+
+    def rollback(self) -> ControllerState:
+        """Undo the last :meth:`step` (a step whose duty cannot be commanded); returns :attr:`state`."""
+        x, fwd, hist, pos = self.state[1:]
+        x[:], fwd[:], hist[:], pos[:] = self._saved
+        return self.state
 
 
 def init(p: ControllerParams, meas_lpm, duty0_pct=0.0) -> ControllerState:

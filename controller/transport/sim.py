@@ -30,12 +30,17 @@ class SimTransport:
     def __init__(self, plant, duty0_pct: float = 0.0, injections=()):
         self.plant = plant
         self._injections = sorted(injections, key=lambda x: x[0])
-        self.state = plant.init(duty0_pct)
-        self.state, out = plant.step(self.state, duty0_pct)
+        self._valve = plant.running(plant.init(duty0_pct))
+        out = self._valve.step(duty0_pct)
         self._meas = out.flow_lpm
         self.last = out
         self._duty = duty0_pct
         self._t = None  # time of the last command, s
+
+    @property
+    def state(self):
+        """The valve's state now (a copy)."""
+        return self._valve.state
 
     def poll_measurement(self, accept) -> tuple[float | None, int]:
         v, self._meas = self._meas, None
@@ -53,9 +58,9 @@ class SimTransport:
             self.plant.retune(**{name: value})
         if self._t is not None:
             for _ in range(int(round((t_s - self._t) * self.plant.rate_hz)) - 1):  # missed periods
-                self.state, _ = self.plant.step(self.state, self._duty)
+                self._valve.step(self._duty)
         self._t, self._duty = t_s, duty_pct
-        self.state, self.last = self.plant.step(self.state, duty_pct)
+        self.last = self._valve.step(duty_pct)
         self._meas = self.last.flow_lpm
 
     def publish_error(self, t_s: float, error_lpm: float) -> None:
