@@ -69,6 +69,17 @@ def test_every_kind_as_plant_reproduces_its_own_predict(clean, family_models, ki
     np.testing.assert_allclose(true_flow(clean.replace(model=model), duty), np.maximum(expected, 0.0), rtol=0, atol=1e-9)
 
 
+def test_a_pi_mod_with_the_descending_envelope_as_plant_reproduces_its_own_predict(clean):
+    """pi-mod's generalized plays (a > 0) run in the plant kernel as in the model."""
+    from models.preprocess import Scaling
+    from tests.test_pi_mod import GENERALIZED
+
+    model = FittedModel("pi-mod", GENERALIZED, Scaling(55.0, 17.0), Scaling(98.0, 86.0))
+    duty = np.clip(np.concatenate([sines(RATE, 30.0), paper_identification(RATE)[:3000]]), 38.0, 72.0)
+    expected, _ = model.predict(duty)
+    np.testing.assert_allclose(true_flow(clean.replace(model=model), duty), np.maximum(expected, 0.0), rtol=0, atol=1e-9)
+
+
 def test_batch_of_mixed_kinds_is_each_plant_alone_bit_for_bit(family_models):
     params = [load_plant().replace(model=m, valve_dynamics=0.02, transport_delay=0.013, asymmetric_hysteresis=0.3)
               for m in family_models.values()]
