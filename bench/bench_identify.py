@@ -10,9 +10,10 @@ and its 0.5 L/min sensor noise) and each protocol duration:
    working range, never seen by the identification): RMSE;
 3. the lag and delay against the twin's;
 4. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
-   steady MAE and IAE of the run's controller, and of ``pid`` as the baseline
-   measured in the same run: the sweep's best PID (same run configuration)
-   and the twin's own ``run.toml`` PID gains (untuned for it).
+   steady MAE and IAE of the run's controller and of ``ff+kf``, and of ``pid``
+   as the baseline measured in the same run: the PID the same sweep tuned
+   (``IAE/pid``, same run configuration, same variants) and the twin's own
+   ``run.toml`` PID gains (untuned for it, ``/shipped``).
 
 Prints one table. Usage::
 
@@ -167,12 +168,15 @@ def one(name: str, duration: float, root: str) -> dict:
     run_toml = os.path.join(out, "run.toml")
     best = closed_loop(cfg, run_toml, folder, None)
     pid = closed_loop(cfg, run_toml, folder, "pid")
+    ffkf = best if summ["controller"] == "ff+kf" else closed_loop(cfg, run_toml, folder, "ff+kf")
     shipped = closed_loop(cfg, cfg, folder, "pid")  # the twin's own run.toml gains: the untuned baseline
     row.update(steady_mae=best["tracking"]["steady_mae_lpm"], iae=best["tracking"]["iae"],
                iae_pid=pid["tracking"]["iae"], steady_mae_pid=pid["tracking"]["steady_mae_lpm"],
+               iae_ffkf=ffkf["tracking"]["iae"], steady_mae_ffkf=ffkf["tracking"]["steady_mae_lpm"],
                iae_pid_shipped=shipped["tracking"]["iae"], faults=[f["kind"] for f in best["faults"]],
-               overruns=best["overruns"])
+               overruns=best["overruns"], overruns_pid=pid["overruns"], load1=os.getloadavg()[0])
     row["iae_ratio"] = row["iae"] / row["iae_pid"]
+    row["iae_ratio_ffkf"] = row["iae_ffkf"] / row["iae_pid"]
     row["iae_ratio_shipped"] = row["iae"] / row["iae_pid_shipped"]
     with open(os.path.join(folder, "bench.json"), "w") as fh:
         json.dump(row, fh, indent=1)
@@ -192,11 +196,12 @@ def main() -> None:
             rows.append(r)
             print(json.dumps(r), flush=True)
     print(f"\n{'twin':<6}{'dur s':>7}{'model':>9}{'tau ms':>8}{'err':>7}{'delay ms':>9}{'err':>7}{'held-out':>9}"
-          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'/shipped':>9}")
+          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'ff+kf':>7}{'st.MAE':>8}{'/shipped':>9}")
     for r in rows:
         print(f"{r['twin']:<6}{r['duration_s']:7.0f}{r['model']:>9}{r['tau_ms']:8.2f}{r['tau_err']:7.1%}"
               f"{r['delay_ms']:9.2f}{r['delay_err']:7.1%}{r['held_out_rmse']:9.2f}{r['controller']:>8}"
-              f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}{r['iae_ratio_shipped']:9.2f}")
+              f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}{r['iae_ratio_ffkf']:7.2f}{r['steady_mae_ffkf']:8.2f}"
+              f"{r['iae_ratio_shipped']:9.2f}")
 
 
 if __name__ == "__main__":
