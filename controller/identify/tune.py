@@ -22,7 +22,6 @@ Written to the output folder:
 from __future__ import annotations
 
 import copy
-import dataclasses
 import os
 from dataclasses import dataclass
 
@@ -173,18 +172,19 @@ def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: floa
     runner.write_csv(res, os.path.join(out_dir, "sweep.csv"))
     obj = res.table[spec.objective]
     words = res.table["controller"]
-    best, cfg = {}, run
+    best, rows, cfg = {}, {}, run
     for word in SWEEP_CANDIDATES:
         idx = [i for i in range(len(words)) if words[i] == word and obj[i] == obj[i]]
         if not idx:
             continue
         i = min(idx, key=lambda j: obj[j])
         best[word] = runner.candidate_summary(res, i)
-        cfg = apply(cfg, word, spec.candidates.row(i))
+        rows[word] = spec.candidates.row(i)
+        cfg = apply(cfg, word, rows[word])
     if not best:
         raise ValueError("the gain sweep gave no finite IAE for any candidate")
     winner = min(best, key=lambda w: best[w][spec.objective])
-    cfg = dataclasses.replace(cfg, sections={**cfg.sections, "": {**cfg.sections[""], "controller": winner}})
-    cfg = apply(cfg, winner, {})
+    # last, so any setting the words share is the winner's
+    cfg = apply(cfg, winner, rows[winner])
     write_run_config(cfg, run.path)
     return Tuning(run.path, winner, best, res.seconds)
