@@ -78,6 +78,12 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
     assert rec.text_columns["phase"][-1] == "safe" and rec.duty_pct[-1] == 0.0
     run = (out / "run.toml").read_text()
     assert f"tau_s = {summ['tau_s']!r}" in run and 'model = "model.json"' in run
+    from controller.config import load_run_config
+    from controller.identify.tune import READY_SHARE
+
+    span = summ["working_range"]["hi_pct"] - summ["working_range"]["lo_pct"]
+    margin = max(load_run_config(cfg)["feedforward"]["ready_margin_pct"], READY_SHARE * span)
+    assert load_run_config(out / "run.toml")["feedforward"]["ready_margin_pct"] == pytest.approx(margin)
     for f in ("model.json", "plant.toml", "report.md", "loops.png", "steps.png", "protocol.png"):
         assert (out / f).stat().st_size > 0
 

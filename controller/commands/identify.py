@@ -128,7 +128,7 @@ def run(args) -> int:
     others = sorted((r for r in est.results.values() if r.model.kind != plant.kind), key=lambda r: r.validation.rmse)
     alt = next((r.model for r in others if plant_model(r.model, lambda: None) is not None), None)
     tuning = tune(cfg, out, est.model, plant, dyn.tau_s, dyn.delay_s, dyn.noise_lpm, idc["seed"],
-                  idc["tune_candidates"], alt=alt)
+                  idc["tune_candidates"], alt=alt, span_pct=res.working_range.span_pct)
     report = write_report(out, res, est, dyn, tuning, rate)
     summ = summary_json(res, est, dyn, tuning)
     write_json_atomic(os.path.join(out, "identify.json"), summ)
