@@ -36,7 +36,7 @@ def twin_config(tmp_path, **identify) -> str:
     s["effects"].update(valve_dynamics=TAU, transport_delay=DELAY)
     s["loop"]["rt_priority"] = 0
     # a loaded 2-core test machine stalls processes for a few hundred ms at times
-    s["identify"].update({"stale_ms": 1500.0, "wait_s": 120.0, "tune_candidates": 16, **identify})
+    s["identify"].update({"stale_ms": 1500.0, "wait_s": 120.0, "tune_candidates": 8, **identify})
     path = str(tmp_path / "twin.toml")
     write_run_config(dataclasses.replace(base, sections=s), path)
     return path
