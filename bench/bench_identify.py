@@ -9,7 +9,11 @@ and its 0.5 L/min sensor noise) and each protocol duration:
    noise-free flow on a held-out protocol (random holds and sines over the
    working range, never seen by the identification): RMSE;
 3. the lag and delay against the twin's;
-4. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
+4. the run configuration it wrote, against the twin simulated in-process at
+   exactly its rate (``sim``): IAE of each controller word with its gains
+   against the sweep-tuned ``pid``, what the identification is worth without
+   the missed periods of a loaded machine;
+5. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
    steady MAE and IAE of the run's controller and of ``ff+kf``, and of ``pid``
    as the baseline measured in the same run: the PID the same sweep tuned
    (``IAE/pid``, same run configuration, same variants) and the twin's own
@@ -125,6 +129,37 @@ def identified_held_out_rmse(cfg_path: str, out: str) -> float:
                          summ["working_range"]["lo_pct"], summ["working_range"]["hi_pct"])
 
 
+def simulated_closed_loop(cfg_path: str, out: str) -> dict:
+    """IAE and steady MAE per controller word of the identified run against the twin simulated in-process.
+
+    The run configuration ``identify`` wrote, with its gains, drives the twin at exactly its
+    rate (the sweep's simulator, which is the live loop step for step): what the
+    identification is worth without the loaded machine's missed periods.
+    """
+    from controller.sweep import runner
+    from controller.sweep.spec import load_sweep
+
+    twin = load_run_config(cfg_path)
+    run = load_run_config(os.path.join(out, "run.toml"))
+    s = copy.deepcopy(run.sections)
+    s[""].update(plant="sim", plant_config=twin.resolve(twin[""]["plant_config"]))
+    s["effects"] = dict(twin["effects"])
+    folder = os.path.join(out, "twin_sim")
+    os.makedirs(folder, exist_ok=True)
+    write_run_config(dataclasses.replace(run, sections=s), os.path.join(folder, "run.toml"))
+    gains = json.load(open(os.path.join(out, "identify.json")))["gains"]
+    lines = ['run = "run.toml"', f"duration_s = {RUN_S!r}", 'objective = "iae"', "margins_top = 0", "", "[[variants]]"]
+    for word, params in gains.items():
+        lines += ["", "[[candidates]]", f'controller = "{word}"', 'sample = "grid"']
+        lines += [f"{k} = [{v!r}]" for k, v in params.items() if k != "controller"]
+    with open(os.path.join(folder, "sweep.toml"), "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    res = runner.run_sweep(load_sweep(os.path.join(folder, "sweep.toml")), None, 1)
+    t = res.table
+    return {t["controller"][i]: {"iae": float(t["iae"][i]), "steady_mae_lpm": float(t["steady_mae_lpm"][i])}
+            for i in range(1, len(t["controller"]))}
+
+
 def closed_loop(cfg: str, run_toml: str, out: str, word: str | None) -> dict:
     ep = f"tcp/127.0.0.1:{free_port()}"
     tag = f"{word or 'default'}{'_shipped' if run_toml == cfg else ''}"
@@ -184,6 +219,10 @@ def one(name: str, duration: float, root: str) -> dict:
                iae_ffkf=ffkf["tracking"]["iae"], steady_mae_ffkf=ffkf["tracking"]["steady_mae_lpm"],
                iae_pid_shipped=shipped["tracking"]["iae"], faults=[f["kind"] for f in best["faults"]],
                overruns=best["overruns"], overruns_pid=pid["overruns"], load1=os.getloadavg()[0])
+    sim = simulated_closed_loop(cfg, out)
+    row.update(sim_iae={w: v["iae"] for w, v in sim.items()}, sim_steady_mae={w: v["steady_mae_lpm"] for w, v in sim.items()})
+    row["sim_iae_ratio"] = sim[summ["controller"]]["iae"] / sim["pid"]["iae"]
+    row["sim_iae_ratio_ffkf"] = sim["ff+kf"]["iae"] / sim["pid"]["iae"]
     row["iae_ratio"] = row["iae"] / row["iae_pid"]
     row["iae_ratio_ffkf"] = row["iae_ffkf"] / row["iae_pid"]
     row["iae_ratio_shipped"] = row["iae"] / row["iae_pid_shipped"]
@@ -205,12 +244,12 @@ def main() -> None:
             rows.append(r)
             print(json.dumps(r), flush=True)
     print(f"\n{'twin':<6}{'dur s':>7}{'model':>9}{'tau ms':>8}{'err':>7}{'delay ms':>9}{'err':>7}{'held-out':>9}"
-          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'ff+kf':>7}{'st.MAE':>8}{'/shipped':>9}")
+          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'ff+kf':>7}{'st.MAE':>8}{'/shipped':>9}{'sim':>6}{'ff+kf':>7}")
     for r in rows:
         print(f"{r['twin']:<6}{r['duration_s']:7.0f}{r['model']:>9}{r['tau_ms']:8.2f}{r['tau_err']:7.1%}"
               f"{r['delay_ms']:9.2f}{r['delay_err']:7.1%}{r['held_out_rmse']:9.2f}{r['controller']:>8}"
               f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}{r['iae_ratio_ffkf']:7.2f}{r['steady_mae_ffkf']:8.2f}"
-              f"{r['iae_ratio_shipped']:9.2f}")
+              f"{r['iae_ratio_shipped']:9.2f}{r['sim_iae_ratio']:6.2f}{r['sim_iae_ratio_ffkf']:7.2f}")
 
 
 if __name__ == "__main__":
