@@ -24,8 +24,9 @@ whose transient a stall fell into looks slower and later than the valve is
 15 ms lag and a 10 ms delay; its clean steps, 15.1 ms and 10.0 ms). A step is
 clean when no fresh reading in its transient (from the command to the delay
 plus four lags, as all steps read them) came more than
-:data:`CLEAN_GAP_PERIODS` periods after the one before; when fewer than
-:data:`MIN_CLEAN_STEPS` are clean, the least disturbed ones are used.
+:data:`CLEAN_GAP_PERIODS` periods after the one before. One clean step is
+worth more than any number of disturbed ones; when none is clean, the
+:data:`FALLBACK_STEPS` least disturbed are used.
 
 ``t0`` is the time of the row that commanded the step, so the delay is
 the command-to-measurement delay a loop on the same transport sees
@@ -43,8 +44,8 @@ from scipy.optimize import least_squares
 MIN_SNR = 20.0
 #: A step's transient is clean when no fresh reading in it came later than this many periods after the one before.
 CLEAN_GAP_PERIODS = 2.5
-#: At least this many steps make the figures: the least disturbed ones when fewer are clean.
-MIN_CLEAN_STEPS = 3
+#: When no step is clean, this many of the least disturbed make the figures.
+FALLBACK_STEPS = 3
 #: Corner of the zero-phase smoothing before the lag is inverted, Hz: ten times the fits' own
 #: lowpass (:mod:`models.preprocess`: 0.4 of the 5 Hz Nyquist of the 10 Hz fit rate).
 DECONVOLVE_HZ = 20.0
@@ -219,7 +220,7 @@ def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndar
 
 
 def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> list:
-    """The steps whose transient no stall fell into (at least :data:`MIN_CLEAN_STEPS`: the least disturbed).
+    """The steps whose transient no stall fell into (none: the :data:`FALLBACK_STEPS` least disturbed).
 
     A step's disturbance is the longest wait between fresh readings (times ``fresh_t_s``) from
     its command to the median delay plus four median lags over all steps (stalls lengthen
@@ -233,9 +234,9 @@ def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> list:
         gaps.append(float(np.max(np.diff(seen))) if len(seen) > 1 else math.inf)
     gaps = np.array(gaps)
     clean = gaps <= CLEAN_GAP_PERIODS * period_s
-    if clean.sum() >= min(MIN_CLEAN_STEPS, len(fits)):
+    if clean.any():
         return [f for f, c in zip(fits, clean) if c]
-    return [fits[i] for i in sorted(np.argsort(gaps, kind="stable")[:MIN_CLEAN_STEPS])]
+    return [fits[i] for i in sorted(np.argsort(gaps, kind="stable")[:FALLBACK_STEPS])]
 
 
 def static_flow(t_s: np.ndarray, flow_lpm: np.ndarray, fresh: np.ndarray, at_s: np.ndarray, tau_s: float,
