@@ -145,9 +145,14 @@ def test_steps_a_stall_fell_into_are_left_out(session_60s):
         flow[k + 2:k + 18] = flow[k + 1]
     dyn = dynamics_from_steps(t, d, flow, rows, fresh=fresh)
     assert not {f.t0_s for f in dyn.steps} & {t[k] for k in stalled}  # every stalled step left out
-    assert dyn.disturbed >= len(stalled) // 2  # (some steps are too small to read at all)
+    assert dyn.disturbed >= len(stalled) // 2 and dyn.clean  # (some steps are too small to read at all)
     assert dyn.tau_s == pytest.approx(TAU, rel=0.05)
     assert dyn.delay_s - 1 / RATE == pytest.approx(DELAY, rel=0.05)
+    # every step stalled: the least disturbed are used, and the figures say they are not clean
+    for k in starts:
+        fresh[k + 2:k + 18] = False
+    dyn = dynamics_from_steps(t, d, flow, rows, fresh=fresh)
+    assert not dyn.clean and dyn.disturbed == dyn.read and len(dyn.steps) == 3
 
 
 def test_flow_above_the_limit_aborts_at_once_to_the_safe_duty():

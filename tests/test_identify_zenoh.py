@@ -71,8 +71,13 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
     rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p50"] * 1e-6
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
     assert summ["duration_s"] == pytest.approx(12.0, abs=0.1)
-    assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)
-    assert 0.8 * DELAY <= summ["delay_s"] <= 1.2 * DELAY + rt_s
+    dyn = summ["dynamics"]
+    if dyn["clean"]:  # a step read without a stall of this machine
+        assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)
+        assert 0.8 * DELAY <= summ["delay_s"] <= 1.2 * DELAY + rt_s
+    else:  # a machine too busy to read any step cleanly: said, and the figures err long, never short
+        assert dyn["steps_disturbed"] == dyn["steps_read"] and "no step was read without a stall" in se
+        assert summ["tau_s"] >= 0.8 * TAU and summ["delay_s"] >= 0.8 * DELAY
     rec = read_recording(out / "identification.csv")
     assert {"supply_bar", "coil_temp_c"} <= set(rec.columns)  # valve-node publishes them
     assert rec.text_columns["phase"][-1] == "safe" and rec.duty_pct[-1] == 0.0

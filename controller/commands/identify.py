@@ -112,6 +112,10 @@ def run(args) -> int:
     except ValueError as exc:
         sys.stderr.write(f"valvectl identify: cannot read the lag and delay: {exc}\n")
         return 1
+    if not dyn.clean:
+        from controller.identify.report import NOT_CLEAN
+
+        sys.stderr.write(f"valvectl identify: warning: {NOT_CLEAN}\n")
     # the loop's convention ([valve] delay_s, plant transport_delay): one period less than command to reading
     dyn = dataclasses.replace(dyn, delay_s=max(dyn.delay_s - 1.0 / rate, 0.0))
     bar = _bar(len(KINDS), "fit", "kinds")

@@ -103,7 +103,7 @@ class Dynamics:
     steps : tuple of StepFit
         The steps the figures are from.
     disturbed : int
-        Steps read but left out: a stall fell into their transient.
+        Steps read that a stall fell into (left out, unless every step was).
     """
 
     tau_s: float
@@ -115,11 +115,18 @@ class Dynamics:
     noise_lpm: float
     steps: tuple
     disturbed: int = 0
+    read: int = 0
+
+    @property
+    def clean(self) -> bool:
+        """Whether the figures are from steps no stall fell into (False: a machine too busy to read any step cleanly)."""
+        return self.disturbed < self.read
 
     def to_json(self) -> dict:
         return {"tau_s": self.tau_s, "delay_s": self.delay_s, "tau_se_s": self.tau_se_s,
                 "delay_se_s": self.delay_se_s, "tau_sd_s": self.tau_sd_s, "delay_sd_s": self.delay_sd_s,
-                "noise_lpm": self.noise_lpm, "steps": len(self.steps), "steps_disturbed": self.disturbed}
+                "noise_lpm": self.noise_lpm, "steps": len(self.steps), "steps_read": self.read,
+                "steps_disturbed": self.disturbed, "clean": self.clean}
 
 
 def step_model(dt_s: np.ndarray, y0: float, dy: float, tau_s: float, delay_s: float) -> np.ndarray:
@@ -209,18 +216,19 @@ def dynamics_from_steps(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndar
     if not fits:
         raise ValueError("no step could be read (too small against the noise, or too short)")
     read = len(fits)
-    fits = undisturbed(fits, t_s[fresh], float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
+    fits, disturbed = undisturbed(fits, t_s[fresh], float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
     tau = np.array([f.tau_s for f in fits])
     d = np.array([f.delay_s for f in fits])
     n = len(fits)
     sd_t = float(np.std(tau, ddof=1)) if n > 1 else float(fits[0].tau_se_s)
     sd_d = float(np.std(d, ddof=1)) if n > 1 else float(fits[0].delay_se_s)
     return Dynamics(float(np.median(tau)), float(np.median(d)), 1.2533 * sd_t / math.sqrt(n),
-                    1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits), read - n)
+                    1.2533 * sd_d / math.sqrt(n), sd_t, sd_d, noise, tuple(fits), disturbed, read)
 
 
-def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> list:
-    """The steps whose transient no stall fell into (none: the :data:`FALLBACK_STEPS` least disturbed).
+def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> tuple[list, int]:
+    """The steps whose transient no stall fell into (none: the :data:`FALLBACK_STEPS` least disturbed),
+    and how many a stall fell into.
 
     A step's disturbance is the longest wait between fresh readings (times ``fresh_t_s``) from
     its command to the median delay plus four median lags over all steps (stalls lengthen
@@ -235,8 +243,8 @@ def undisturbed(fits: list, fresh_t_s: np.ndarray, period_s: float) -> list:
     gaps = np.array(gaps)
     clean = gaps <= CLEAN_GAP_PERIODS * period_s
     if clean.any():
-        return [f for f, c in zip(fits, clean) if c]
-    return [fits[i] for i in sorted(np.argsort(gaps, kind="stable")[:FALLBACK_STEPS])]
+        return [f for f, c in zip(fits, clean) if c], int(np.sum(~clean))
+    return [fits[i] for i in sorted(np.argsort(gaps, kind="stable")[:FALLBACK_STEPS])], len(fits)
 
 
 def static_flow(t_s: np.ndarray, flow_lpm: np.ndarray, fresh: np.ndarray, at_s: np.ndarray, tau_s: float,

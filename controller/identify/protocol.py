@@ -41,8 +41,9 @@ SHARES = {"sweep": 0.55, "reversals": 0.15, "steps": 0.30}
 RANGE_SHARE = 0.04
 #: Cracking and full-open thresholds of the range finding, fractions of the largest flow seen.
 CRACK_FRACTION, OPEN_FRACTION = 0.03, 0.98
-#: Step holds, s: long enough for a lag of up to a tenth of the shortest.
-HOLD_S = (0.5, 2.5)
+#: Step holds, s: long enough for a lag of up to a tenth of the shortest (short protocols get more steps,
+#: so more chances of one a stall of a busy machine does not fall into).
+HOLD_S = (0.3, 2.5)
 
 
 @dataclass(frozen=True)
@@ -158,7 +159,7 @@ def reversal_duty(r: WorkingRange, start_pct: float, duration_s: float, rate_hz:
 
 
 def step_duty(r: WorkingRange, start_pct: float, duration_s: float, rate_hz: float, seed: int = 0) -> np.ndarray:
-    """Held levels, alternately up and down by 8-90 % of the range, held for ``duration_s / 40`` (0.5-2.5 s)."""
+    """Held levels, alternately up and down by 8-90 % of the range, held for ``duration_s / 40`` (0.3-2.5 s)."""
     rng = np.random.default_rng(seed)
     hold = float(np.clip(duration_s / 40.0, *HOLD_S))
     n_hold = max(1, int(round(hold * rate_hz)))

@@ -16,6 +16,10 @@ import numpy as np
 from models.atomicfile import save_figure_atomic, write_text_atomic
 
 from .dynamics import Dynamics, steps_plot
+
+#: Said (report, stderr) when no step could be read without a stall.
+NOT_CLEAN = ("no step was read without a stall of this machine: the lag and delay are from the least disturbed "
+             "steps and likely too long; identify again on a quieter machine (or with the loop at real-time priority)")
 from .estimate import Estimate, loops_plot, table
 from .session import SessionResult
 
@@ -107,8 +111,10 @@ def write_report(out_dir: str, res: SessionResult, est: Estimate, dyn: Dynamics,
         f"| lag tau | {dyn.tau_s * 1e3:.2f} ms | {dyn.tau_se_s * 1e3:.2f} ms | {dyn.tau_sd_s * 1e3:.2f} ms |",
         f"| delay | {dyn.delay_s * 1e3:.2f} ms | {dyn.delay_se_s * 1e3:.2f} ms | {dyn.delay_sd_s * 1e3:.2f} ms |",
         "",
-        f"From {len(dyn.steps)} steps; sensor noise {dyn.noise_lpm:.2f} L/min per reading. The delay is the "
+        f"From {len(dyn.steps)} of {dyn.read} steps read ({dyn.disturbed} with a stall of this machine in "
+        f"the transient); sensor noise {dyn.noise_lpm:.2f} L/min per reading. The delay is the "
         "loop's: the command-to-reading delay less one loop period, transport latency included.",
+        *([] if dyn.clean else ["", f"**Warning:** {NOT_CLEAN}"]),
         "",
         "![steps](steps.png)",
         "",
