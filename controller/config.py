@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 import msgspec
 
 from models.recording import MAX_RATE_HZ, InputError
-from models.schema import Finite, KeyId, NonEmpty, NonNegative, Percent, Positive, convert
+from models.schema import Finite, KeyId, NoiseLpm, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
 from .alarms import AlarmSettings
@@ -93,9 +93,9 @@ class PID(_Section):
 
 
 class KF(_Section):
-    q_flow_lpm: NonNegative = 1.0
-    q_bias_lpm: NonNegative = 0.05
-    r_lpm: Positive = 0.5
+    q_flow_lpm: NoiseLpm = 1.0
+    q_bias_lpm: NoiseLpm = 0.05
+    r_lpm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 0.5
 
 
 class Zenoh(_Section):

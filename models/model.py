@@ -26,6 +26,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from .preprocess import Scaling
@@ -123,10 +124,11 @@ class FittedModel:
         if not isinstance(kind, str) or kind not in forward_kinds():
             raise InputError(f"{source}: kind: {kind!r} is not a model kind (one of {', '.join(forward_kinds())})")
         f = convert(d, KINDS[kind].file, source)
-        core = core_class(kind).from_params(d["params"])
+        # the checked params, with the schema's defaults for the fields a file may leave out
+        core = core_class(kind).from_params(msgspec.to_builtins(f.params))
         inverse = None
         if getattr(f, "inverse", None) is not None:
-            inverse = core_class(f.inverse.kind).from_params(d["inverse"]["params"])
+            inverse = core_class(f.inverse.kind).from_params(msgspec.to_builtins(f.inverse.params))
         return cls(
             kind=kind,
             core=core,

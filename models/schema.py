@@ -59,6 +59,8 @@ Finite = Annotated[float, msgspec.Meta(ge=-MAX, le=MAX)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0, le=MAX)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=MAX)]
 Percent = Annotated[float, msgspec.Meta(ge=0.0, le=100.0)]
+#: A noise standard deviation in L/min: squared by the filters, so bounded where a flow could be (1e4 L/min).
+NoiseLpm = Annotated[float, msgspec.Meta(ge=0.0, le=1e4)]
 NonEmpty = Annotated[str, msgspec.Meta(min_length=1)]
 #: A Zenoh key chunk (``vent/valve/{id}``): no wildcards (``*``, ``**``, ``$*``), no ``/``, ``?``, ``#``.
 KeyId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$")]

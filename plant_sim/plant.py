@@ -132,7 +132,7 @@ class _Settings(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     model_supply_bar: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 3.0
     atmosphere_bar: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.01325
     droop_bar: NonNegative = 0.15
-    droop_ref_lpm: Positive = 200.0
+    droop_ref_lpm: Annotated[float, msgspec.Meta(ge=1e-3, le=1e4)] = 200.0  # a flow; squared by the droop
     wander_tau_s: Positive = 30.0
     ambient_c: Annotated[float, msgspec.Meta(ge=-273.15, le=1000.0)] = 25.0
     coil_tau_s: Positive = 180.0

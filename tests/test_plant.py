@@ -345,3 +345,7 @@ def test_load_plant_rejects_bad_input(tmp_path):
     bad.write_text("model = \n")
     with pytest.raises(InputError, match="TOML"):
         load_plant(bad)
+    for ref in ("1e-300", "1e308"):  # squared by the droop: 0 and overflow
+        bad.write_text(f'model = "valve_model.json"\n[supply]\ndroop_ref_lpm = {ref}\n')
+        with pytest.raises(InputError, match="supply.droop_ref_lpm"):
+            load_plant(bad)

@@ -29,6 +29,7 @@ def test_short_run_writes_summary_record_and_plot(tmp_path, capsys):
     ("[pid]\nkq = 1.0\n", "pid.kq"),
     ("[plumbing]\nx = 1\n", "plumbing"),
     ("controller = \n", "TOML"),
+    ("[kf]\nq_flow_lpm = 1e308\n", "kf.q_flow_lpm"),  # squared by the filter's Riccati equation: inf
 ])
 def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, text, field):
     cfg = tmp_path / "run.toml"
