@@ -46,6 +46,10 @@ def _write(path: str, data: bytes, mode: int) -> None:
         fh.write(data)
 
 
+#: Longest validity asked of ``--days`` (X.509 times end in 9999; a site renews long before).
+MAX_DAYS = 36525
+
+
 def make_site(folder: str, hosts: list[str] = (), days: int = 3650, site: str = "valvectl site") -> list[str]:
     """Write the CA and the role certificates into ``folder``; returns the paths written."""
     from cryptography import x509
@@ -105,8 +109,10 @@ def run(args) -> int:
     from controller.transport.security import ROLES
     from models.recording import InputError
 
-    if args.days <= 0:
-        raise InputError(f"--days: must be > 0, got {args.days}")
+    if not 0 < args.days <= MAX_DAYS:
+        raise InputError(f"--days: must be within 1..{MAX_DAYS} (100 years), got {args.days}")
+    if not 1 <= len(args.site) <= 64:  # X.509 bounds a common name to 64 characters
+        raise InputError(f"--site: the CA's common name must have 1 to 64 characters, got {len(args.site)}")
     folder = args.dir
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise InputError(f"{folder}: exists and is not a folder")
