@@ -171,6 +171,32 @@ def test_a_valve_that_never_flows_aborts_to_the_safe_duty():
     assert res.columns["duty_pct"][-1] == 0.0 and res.duration_s < 20.0 * 0.1
 
 
+class StallingClock(SimClock):
+    """A clock whose process is descheduled once, for ``stall_s`` at ``at_s``."""
+
+    def __init__(self, at_s, stall_s):
+        super().__init__()
+        self.at_s, self.stall_s = at_s, stall_s
+
+    def wait_until(self, deadline):
+        t = super().wait_until(deadline)
+        if self.stall_s and t >= self.at_s:
+            self.t, self.stall_s = t + self.stall_s, 0.0
+        return self.t
+
+
+def test_a_session_that_stalled_longer_than_stale_aborts_to_the_safe_duty():
+    # measurements kept coming (the valve's bridge ran on), but no command went out for 0.3 s
+    res = run_session(Program(ProtocolParams(duration_s=30.0, rate_hz=RATE)), SimTransport(twin()),
+                      Safety(stale_s=0.25), RATE, StallingClock(5.0, 0.3))
+    assert res.aborted and res.reason == "stalled" and res.columns["duty_pct"][-1] == 0.0
+    assert res.duration_s == pytest.approx(5.3, abs=0.01)
+    # a stall within stale_s is ridden out
+    res = run_session(Program(ProtocolParams(duration_s=10.0, rate_hz=RATE)), SimTransport(twin()),
+                      Safety(stale_s=0.25), RATE, StallingClock(5.0, 0.2))
+    assert not res.aborted and res.overruns >= 199
+
+
 def test_stale_measurement_and_stop_abort():
     prog = Program(ProtocolParams(duration_s=30.0, rate_hz=RATE))
     res = run_session(prog, Silent(twin(), after_s=5.0), Safety(stale_s=0.1), RATE, SimClock())

@@ -7,10 +7,12 @@ absolute deadlines, missed periods skipped and counted). Per step:
    when the valve publishes them); malformed or out-of-range values are
    counted and ignored;
 2. safety, before anything is commanded:
-   ``stop()`` true (Ctrl-C, SIGTERM) -> ``interrupted``; no measurement for
-   ``stale_s`` -> ``stale``; measured flow above ``flow_limit_lpm`` ->
-   ``flow_limit``. Any of them commands the safe duty in this same step and
-   ends the session, ``aborted``;
+   ``stop()`` true (Ctrl-C, SIGTERM) -> ``interrupted``; the session itself
+   stalled (no command sent) for longer than ``stale_s`` -> ``stalled`` (the
+   valve went uncommanded: its bridge may have closed it, and the recording
+   no longer says what it did); no measurement for ``stale_s`` -> ``stale``;
+   measured flow above ``flow_limit_lpm`` -> ``flow_limit``. Any of them
+   commands the safe duty in this same step and ends the session, ``aborted``;
 3. the protocol's duty for this step, clamped to the allowed duty range;
 4. command it and write the row (flushed: a killed session leaves every row
    before the kill).
@@ -78,7 +80,8 @@ class SessionResult:
         Protocol phase per row (``safe`` for the row that stopped it).
     aborted : bool
     reason : str or None
-        ``interrupted``, ``stale``, ``no_measurement``, ``flow_limit`` or ``no_working_range`` when aborted.
+        ``interrupted``, ``stalled``, ``stale``, ``no_measurement``, ``flow_limit`` or ``no_working_range``
+        when aborted.
     duration_s : float
         Valve time, s.
     working_range : WorkingRange or None
@@ -145,7 +148,7 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
     steps = overruns = 0
     t0 = clock.now()
     deadline = t0
-    t = 0.0
+    t = t_sent = 0.0
     while True:
         now = clock.wait_until(deadline)
         t = now - t0
@@ -160,6 +163,8 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
 
         if stop is not None and stop():
             reason = "interrupted"
+        elif t - t_sent > safety.stale_s:
+            reason = "stalled"
         elif dog.stale(t):
             reason = "stale" if meas == meas else "no_measurement"
         elif meas > safety.flow_limit_lpm:
@@ -176,6 +181,7 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
             duty = min(max(nxt[0], safety.duty_min_pct), safety.duty_max_pct)
             phase = nxt[1]
         transport.command(duty, t)
+        t_sent = t
 
         if steps == cap:
             for c in cols:
