@@ -68,7 +68,8 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
         stop(node)
     assert ident.returncode == 0, se
     summ = json.loads((out / "identify.json").read_text())
-    rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p50"] * 1e-6
+    # the delay a loop sees is the valve's plus the transport's at that moment (within its 99th percentile)
+    rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p99"] * 1e-6
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
     assert summ["duration_s"] == pytest.approx(12.0, abs=0.1)
     dyn = summ["dynamics"]
