@@ -288,6 +288,11 @@ def main() -> None:
             longest = "-" if r["flooded_longest_us"] is None else f"{r['flooded_longest_us']:.0f}"
             print(f"{r['case']} | {who} | {r['flooded_rate_pct']:.2f} | {longest} | {r['faults']} | "
                   f"{r['bad_commands']}")
+    idle = next((r for r in rows if r["case"].startswith("idle")), None)
+    shipped = next((r for r in rows if r["case"] == "hogs, loop FIFO + io FIFO"), None)
+    if idle is not None and shipped is not None:  # what the hogs still cost, beside what the machine costs anyway
+        print(f"overruns, hogs with the measures against no hogs: {shipped['overruns']} / {idle['overruns']} "
+              f"({shipped['overrun_pct']:.2f} % / {idle['overrun_pct']:.2f} % of the steps)")
     base = next((r for r in rows if r["case"] == "hogs, nothing"), None)
     for r in rows:
         if base is not None and r["case"].startswith("hogs, loop FIFO"):
