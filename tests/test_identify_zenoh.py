@@ -62,7 +62,7 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
     out = tmp_path / "id"
     try:
         ident = valvectl("identify", "--config", cfg, "--connect", ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
-                         "--duration", "12", "-o", str(out))
+                         "--duration", "10", "-o", str(out))
         so, se = ident.communicate(timeout=280)
     finally:
         stop(node)
@@ -71,7 +71,7 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
     # the delay a loop sees is the valve's plus the transport's at that moment (within its 99th percentile)
     rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p99"] * 1e-6
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
-    assert summ["duration_s"] == pytest.approx(12.0, abs=0.1)
+    assert summ["duration_s"] == pytest.approx(10.0, abs=0.1)
     dyn = summ["dynamics"]
     if dyn["clean"]:  # a step read without a stall of this machine
         assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)
