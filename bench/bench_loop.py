@@ -56,30 +56,41 @@ def in_process(cfg, model, spin_s: float, rt: int) -> dict:
     return summary(loop.run(SECONDS), "ff+kf", "sim")
 
 
-#: The baseline peer: answers every meas/flow at once with a cmd/duty naming it (busy-polled
-#: RingChannel, no control loop), i.e. the bare Zenoh round trip between two Python processes.
+#: The baseline peer: answers every meas/flow at once with a cmd/duty naming it, from the subscriber's
+#: callback on Zenoh's own thread (no control loop, no polling), its Zenoh threads under the
+#: controller's scheduling ([zenoh] io_priority, argv[2]): the bare Zenoh round trip between two
+#: Python processes.
 ECHO = """
-import json, sys, zenoh
+import json, os, sys, time, zenoh
 c = zenoh.Config()
 c.insert_json5("mode", '"peer"')
 c.insert_json5("scouting/multicast/enabled", "false")
 c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+if int(sys.argv[2]) > 0:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(sys.argv[2])))
+    except PermissionError:
+        pass
 with zenoh.open(c) as z:
-    sub = z.declare_subscriber("vent/valve/insp/meas/flow", zenoh.handlers.RingChannel(1024))
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     pub = z.declare_publisher("vent/valve/insp/cmd/duty", encoding=zenoh.Encoding.APPLICATION_JSON,
                               priority=zenoh.Priority.REAL_TIME, express=True)
+
+    def echo(x):
+        d = json.loads(x.payload.to_bytes())
+        pub.put(json.dumps({"t": d["t"], "seq": d["seq"], "value": 0.0, "meas_seq": d["seq"]}).encode())
+
+    sub = z.declare_subscriber("vent/valve/insp/meas/flow", echo)
     while True:
-        x = sub.try_recv()
-        if x is not None:
-            d = json.loads(x.payload.to_bytes())
-            pub.put(json.dumps({"t": d["t"], "seq": d["seq"], "value": 0.0, "meas_seq": d["seq"]}).encode())
+        time.sleep(1.0)
 """
 
 
-def zenoh_round_trip(cfg, echo: bool = False) -> tuple[dict | None, np.ndarray]:
+def zenoh_round_trip(cfg, echo: bool = False, trigger: str = "period") -> tuple[dict | None, np.ndarray]:
     """The valve's view: meas/flow out at 1 kHz, the cmd/duty computed from it back.
 
-    Against the controller (``valvectl run --plant zenoh``), or with ``echo`` against :data:`ECHO`.
+    Against the controller (``valvectl run --plant zenoh --trigger TRIGGER``), or with ``echo``
+    against :data:`ECHO`.
     """
     import zenoh
 
@@ -88,10 +99,10 @@ def zenoh_round_trip(cfg, echo: bool = False) -> tuple[dict | None, np.ndarray]:
         ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     out = os.path.join(tempfile.mkdtemp(), "s.json")
     if echo:
-        ctrl = subprocess.Popen([sys.executable, "-c", ECHO, ep])
+        ctrl = subprocess.Popen([sys.executable, "-c", ECHO, ep, str(cfg["zenoh"]["io_priority"])])
     else:
         ctrl = subprocess.Popen([sys.executable, "-m", "controller.cli", "run", "--plant", "zenoh", "--listen", ep,
-                                 "--duration", "0", "--json", out], stdout=subprocess.DEVNULL)
+                                 "--duration", "0", "--trigger", trigger, "--json", out], stdout=subprocess.DEVNULL)
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("scouting/multicast/enabled", "false")
@@ -142,18 +153,21 @@ def main() -> None:
         base = base or s["lateness_us"]["p99"]
         print(f"  {name:34s} {pct(s['lateness_us'])}   {pct(s['compute_us'])}   overruns {s['overruns']}, "
               f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline")
-    s, rtt = zenoh_round_trip(cfg)
     print("\nover Zenoh (controller process, this process as the valve)")
-    print(f"  controller lateness us {pct(s['lateness_us'])}   compute us {pct(s['compute_us'])}   "
-          f"overruns {s['overruns']} of {s['steps'] + s['overruns']}")
+    runs = {}
+    for trigger in ("period", "measurement"):
+        s, runs[trigger] = zenoh_round_trip(cfg, trigger=trigger)
+        print(f"  trigger {trigger:11s} controller lateness us {pct(s['lateness_us'])}   compute us "
+              f"{pct(s['compute_us'])}   overruns {s['overruns']} of {s['steps'] + s['overruns']}")
     _, echo = zenoh_round_trip(cfg, echo=True)
     e50 = np.percentile(echo, 50) * 1e6
-    for name, x in (("bare Zenoh echo (baseline)", echo), ("through the 1 kHz control loop", rtt)):
+    for name, x in (("bare Zenoh echo (baseline)", echo), ("loop, trigger period", runs["period"]),
+                    ("loop, trigger measurement", runs["measurement"])):
         p50, p99 = np.percentile(x, [50, 99]) * 1e6
-        print(f"  round trip meas/flow -> cmd/duty, {name:32s} us: p50 {p50:6.0f}  p99 {p99:6.0f}  "
+        print(f"  round trip meas/flow -> cmd/duty, {name:28s} us: p50 {p50:6.0f}  p99 {p99:6.0f}  "
               f"max {x.max() * 1e6:6.0f}  ({len(x)} samples; p50 {p50 / e50:.2f}x baseline)")
-    print("  (the loop reads its inputs once per period, so its round trip is the echo's plus up to one "
-          "period plus the step's compute)")
+    print("  (trigger period reads its inputs once per period: the echo's round trip plus up to one period plus "
+          "the step's compute; trigger measurement steps as each measurement arrives)")
 
 
 if __name__ == "__main__":

@@ -8,9 +8,16 @@ counts each as an overrun (as ros2_control's controller manager does), so the
 loop never tries to catch up with a burst of steps. The garbage collector is
 frozen and disabled while the loop runs.
 
+Trigger (``[loop] trigger``): ``period`` steps at every deadline, as above;
+``measurement`` steps as soon as the transport signals a measurement
+(``wait_measurement``), and when none comes, :data:`WATCHDOG_PERIODS`
+periods after the previous step (the watchdog's step). Then lateness is
+wake - arrival (wake - watchdog deadline on a watchdog step) and an overrun
+is a measurement superseded by a newer one before a step took it.
+
 Per step (one period):
 
-1. wake at the deadline; lateness = wake - deadline;
+1. wake at the deadline (or the measurement); lateness = wake - deadline;
 2. take the newest measurement and reference from the transport (already
    received, never waited for); reject and count non-finite or out-of-range
    values (``bad_measurement`` / ``bad_reference``); clamp the reference to
@@ -85,6 +92,12 @@ class LoopSettings:
         that other processes on the machine cannot delay its wake-ups; 0 keeps
         the normal scheduler. Without the permission (root or CAP_SYS_NICE)
         the loop runs with the normal scheduler and says so on stderr.
+    trigger : str
+        ``period``: a step at every deadline (the loop samples the sensor);
+        ``measurement``: a step as soon as a measurement arrives, and at
+        :data:`WATCHDOG_PERIODS` periods after the previous step when none came
+        (the sensor samples on its own clock; the transport must signal
+        arrivals, ``wait_measurement``).
     alarms : AlarmSettings
         Thresholds and hold times of the online alarms.
     fallback : SupervisorSettings
@@ -100,8 +113,17 @@ class LoopSettings:
     status_hz: float = 10.0
     spin_s: float = 300e-6
     rt_priority: int = 0
+    trigger: str = "period"
     alarms: AlarmSettings = AlarmSettings()
     fallback: SupervisorSettings = SupervisorSettings()
+
+
+#: With ``trigger = "measurement"``: a step this many periods after the previous one when no measurement
+#: came (the watchdog's own steps: stale check, safe state, status). Above 1, so that a sensor whose
+#: clock runs slightly slower than the loop's never meets a watchdog step just before its measurement.
+WATCHDOG_PERIODS = 1.5
+#: The triggers of a step (:attr:`LoopSettings.trigger`).
+TRIGGERS = ("period", "measurement")
 
 
 @contextlib.contextmanager
@@ -269,6 +291,12 @@ class Loop:
         """Run for ``duration_s`` seconds (or until ``stop()`` is true); returns the result."""
         cfg = self.settings
         period = 1.0 / cfg.rate_hz
+        if cfg.trigger not in TRIGGERS:
+            raise ValueError(f"trigger {cfg.trigger!r} (one of {', '.join(TRIGGERS)})")
+        on_measurement = cfg.trigger == "measurement"
+        wait_measurement = getattr(self.transport, "wait_measurement", None)
+        if on_measurement and wait_measurement is None:
+            raise ValueError("trigger 'measurement' needs a transport that signals measurements (a valve over Zenoh)")
         n_steps = None if duration_s is None else max(1, int(round(duration_s * cfg.rate_hz)))
         cols = _Columns(n_steps if n_steps else 1 << 16)
         faults = Faults()
@@ -314,7 +342,14 @@ class Loop:
         deadline = t0
         try:
             while True:
-                now = clock.wait_until(deadline)
+                if on_measurement:  # lateness: from the measurement's arrival, or from the watchdog's deadline
+                    arrived, superseded = wait_measurement(deadline)
+                    now = clock.now()
+                    due = deadline if arrived is None else arrived
+                    overruns += superseded
+                else:
+                    now = clock.wait_until(deadline)
+                    due = deadline
                 c0 = pc()
                 t = now - t0
 
@@ -406,7 +441,7 @@ class Loop:
                 a["t_s"][i], a["ref_lpm"][i], a["flow_lpm"][i] = t, ref, meas
                 limit = duty - ff - fb
                 a["duty_pct"][i], a["ff_duty_pct"][i], a["fb_duty_pct"][i], a["limit_duty_pct"][i] = duty, ff, fb, limit
-                a["meas_age_ms"][i], a["lateness_s"][i] = age_ms, now - deadline
+                a["meas_age_ms"][i], a["lateness_s"][i] = age_ms, now - due
                 cols.state[i] = state
                 cols.word[i] = word_index[sup.word]
                 cols.n = i + 1
@@ -414,11 +449,18 @@ class Loop:
                     writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word,
                                   limit, age_ms))
                 a["compute_s"][i] = end = pc() - c0
-                if real_time and end + (now - deadline) > stale_s:  # stood still past its own watchdog
+                if real_time and end + (now - due) > stale_s:  # stood still past its own watchdog
                     faults.add("stalled", t)
                 steps += 1
 
-                if (n_steps is not None and steps >= n_steps) or (stop is not None and stop()):
+                if stop is not None and stop():
+                    break
+                if on_measurement:  # steps come with the measurements; the run ends on its clock
+                    if duration_s is not None and clock.now() - t0 >= duration_s - 0.5 * period:
+                        break
+                    deadline = now + WATCHDOG_PERIODS * period
+                    continue
+                if n_steps is not None and steps >= n_steps:
                     break
                 deadline += period
                 behind = clock.now() - deadline

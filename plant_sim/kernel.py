@@ -44,6 +44,7 @@ import numpy as np
 from numba import njit
 
 from models import bouc_wen, pi_asym, pi_mod, play, preisach, preisach_cont
+from models.borrow import borrow
 
 # -- per-plant parameter vector P[b, :] (float64) --
 (XC, XH, YC, YH, OFF, GAIN_LO, KIND, NM, NK, A_ENV, P_ENV, FLOOR,
@@ -351,4 +352,5 @@ def plant_step(Pb, MPb, EVb, keys_b, msb, xb, bufb, k, d, settle):
 def step_one(P, MP, EV, keys, ms, x, buf, k, duty):
     """:func:`plant_step` of plant 0 of a batch, in place: the live loop's valve, stepped by one call
     of few arguments (the dispatcher's cost grows with their number)."""
+    P, MP, EV, keys, ms, x, buf = borrow(P), borrow(MP), borrow(EV), borrow(keys), borrow(ms), borrow(x), borrow(buf)
     return plant_step(P[0], MP[0], EV[0], keys[0], ms[0], x[0], buf[0], k, duty, False)

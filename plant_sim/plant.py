@@ -341,8 +341,12 @@ class BatchPlant:
             raise ValueError(f"{len(seeds)} seeds for {B} plants")
         self.seeds = seeds
         self._keys = np.array([K.plant_keys(s) for s in seeds], dtype=np.uint64)
-        self._P = np.array([_pack(p, self.rate_hz) for p in self.params])
-        arrays = [_model_arrays(p.model.core) for p in self.params]
+        # packed once per distinct valve: a sweep batches a few valves repeated over hundreds of candidates
+        distinct = {id(p): p for p in self.params}
+        rows = {i: _pack(p, self.rate_hz) for i, p in distinct.items()}
+        models = {i: _model_arrays(p.model.core) for i, p in distinct.items()}
+        self._P = np.array([rows[id(p)] for p in self.params])
+        arrays = [models[id(p)] for p in self.params]
         self._MP = np.zeros((B, max(len(a[3]) for a in arrays)))  # padding: never read
         n_ev = max(a[4].shape[0] for a in arrays)
         self._EV = np.zeros((B, n_ev, n_ev))
@@ -387,7 +391,9 @@ class BatchPlant:
         P = self._P
         u0 = np.clip((d0 - P[:, K.XC]) / P[:, K.XH], -1.0, 1.0)
         # each model's own initial memory (Eq. 3 for the PI family, relaxed relays, staircase, h = 0)
-        memories = [p.model.core.init(float(u)) for p, u in zip(self.params, u0)]
+        memo = {}
+        memories = [memo[key] if key in memo else memo.setdefault(key, p.model.core.init(key[1]))
+                    for p, u in zip(self.params, u0) for key in [(id(p), float(u))]]
         ms = np.zeros((B, max(len(m) for m in memories)))
         for b, m in enumerate(memories):
             ms[b, :len(m)] = m

@@ -18,6 +18,8 @@ def add_arguments(p) -> None:
     p.add_argument("--certs", default=None, metavar="DIR",
                    help="TLS with mutual authentication and access control, as role controller "
                         "(files of `valvectl certs DIR`)")
+    p.add_argument("--trigger", choices=("period", "measurement"), default=None,
+                   help="a step every period, or as each measurement arrives (--plant zenoh); default: [loop] trigger")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="run length, s (0: until interrupted; default: the configuration's, or a FILE reference's span)")
     p.add_argument("--record", default=None, metavar="RUN.csv", help="one row per step, flushed as written")
@@ -45,6 +47,7 @@ def parse_inject(text: str) -> tuple[float, str, float]:
 
 
 def run(args) -> int:
+    import dataclasses
     import signal
 
     from models.atomicfile import save_figure_atomic
@@ -67,9 +70,12 @@ def run(args) -> int:
     if not (0 <= duration < float("inf")):
         raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), got {duration}")
     injections = [parse_inject(x) for x in args.inject]
+    settings = cfg.loop if args.trigger is None else dataclasses.replace(cfg.loop, trigger=args.trigger)
+    if settings.trigger == "measurement" and plant_kind != "zenoh":
+        raise InputError(f"{cfg.path}: loop.trigger = \"measurement\" needs a valve over Zenoh (--plant zenoh): "
+                         "the embedded simulated valve has no clock of its own")
     if injections and plant_kind != "sim":
         raise InputError("--inject: only the simulated valve (--plant sim) can be changed mid-run")
-    settings = cfg.loop
     model = load_model(cfg.resolve(top["model"]))
     recorded = None
     if ref_kind not in ("profile", "zenoh"):
@@ -88,7 +94,7 @@ def run(args) -> int:
         from controller.transport.zenoh import EmbeddedValve, ZenohTransport, open_session
 
         session = open_session(cfg, args.listen, args.connect, role="controller", certs=args.certs)
-        zt = ZenohTransport(session, cfg["zenoh"]["id"], settings.stale_ms * 1e-3)
+        zt = ZenohTransport(session, cfg["zenoh"]["id"], settings.stale_ms * 1e-3, settings.trigger)
     if plant_kind == "sim":
         from controller.transport.sim import SimTransport
         from plant_sim.plant import Plant, load_plant

@@ -49,6 +49,7 @@ from numba import njit
 
 from . import feedforward as ffw
 from . import kalman, limits, pid
+from models.borrow import borrow
 
 MODES = ("pid", "ff", "ff+pid", "ff+kf")
 PID, FF, FF_PID, FF_KF = range(4)
@@ -207,49 +208,60 @@ def _advance(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_
     bank = (method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0, dc, dh, fc, fh,
             margin, beta)
     work = np.empty(Y.shape[1])  # the inverse's scratch
-    L = H.shape[1]
     k_old = pos[0]
-    k_new = (k_old + 1) % L
+    k_new = (k_old + 1) % H.shape[1]
     for b in range(X.shape[0]):
-        p = P[b]
-        x = X[b]
-        prev = x[DUTY]
-        ff = 0.0
-        if mode == PID or mode == FF_PID:
-            integral = x[INTEGRAL]
-            if mode == FF_PID:
-                ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
-            x[INTEGRAL], x[DERIV], duty = pid.update(
-                p[KP], p[KI], p[KD], p[TF], p[TT], integral, x[DERIV], x[MEAS_PREV], ref[b], meas[b], dt, ff, prev,
-                p[DUTY_MIN], p[DUTY_MAX], p[RATE])
-            x[MEAS_PREV] = meas[b]
-            fb = p[KP] * (ref[b] - meas[b]) + integral + x[DERIV]  # the law's own kp e + I + D
-        elif mode == FF:
-            ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
-            duty = limits.limit(ff, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
-            fb = 0.0
-        else:  # ff+kf
-            ff = _feedforward(has_lead, p, x, bank, b, Y[b], work, ref_ff[b], dt)
-            r = x[LEAD_OUT] if has_lead else ref_ff[b]
-            m = H[b, (k_old - int(p[KF_DELAY])) % L]
-            x[FLOW_EST], x[BIAS_EST] = kalman.correct(p[KF_A], p[KF_GAIN_FLOW], p[KF_GAIN_BIAS], x[FLOW_EST],
-                                                      x[BIAS_EST], m, meas[b])
-            u = ff
-            if r > 0.0:  # a reference of no flow closes the valve whatever the bias estimate says
-                u = ffw.invert_one(bank, b, Y[b], work, r - x[BIAS_EST])
-            duty = limits.limit(u, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
-            fb = u - ff
-        if mode != PID:
-            model = ffw.forward_one(bank, b, Y[b], duty)  # the model's memory follows the applied duty
-            if mode == FF_KF:
-                H[b, k_new] = model
-        x[DUTY] = duty
+        duty, ff, fb = law_step(mode, has_lead, P[b], X[b], bank, b, Y[b], work, H[b], k_old, k_new, ref[b],
+                                meas[b], ref_ff[b], dt)
         out[b, 0] = duty
         out[b, 1] = ff
         out[b, 2] = fb
         out[b, 3] = duty - ff - fb
     if mode == FF_KF:
         pos[0] = k_new
+
+
+@njit(cache=True, inline="always")
+def law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref, meas, ref_ff, dt):
+    """One candidate, one period: ``(duty, ff, fb)``, %; its state rows advanced in place.
+
+    ``p``, ``x``: its rows of :attr:`Kernel.P` and :attr:`ControllerState.x`; ``bank``, ``b``: the
+    feedforward's model bank and its index there; ``y``: its forward operator memory; ``work``:
+    scratch of the same length; ``hist``: its ring of model flows, ``m[k-1]`` at ``k_old``, ``m[k]``
+    written at ``k_new`` (``ff+kf``).
+    """
+    prev = x[DUTY]
+    ff = 0.0
+    if mode == PID or mode == FF_PID:
+        integral = x[INTEGRAL]
+        if mode == FF_PID:
+            ff = _feedforward(has_lead, p, x, bank, b, y, work, ref_ff, dt)
+        x[INTEGRAL], x[DERIV], duty = pid.update(
+            p[KP], p[KI], p[KD], p[TF], p[TT], integral, x[DERIV], x[MEAS_PREV], ref, meas, dt, ff, prev,
+            p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+        x[MEAS_PREV] = meas
+        fb = p[KP] * (ref - meas) + integral + x[DERIV]  # the law's own kp e + I + D
+    elif mode == FF:
+        ff = _feedforward(has_lead, p, x, bank, b, y, work, ref_ff, dt)
+        duty = limits.limit(ff, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+        fb = 0.0
+    else:  # ff+kf
+        ff = _feedforward(has_lead, p, x, bank, b, y, work, ref_ff, dt)
+        r = x[LEAD_OUT] if has_lead else ref_ff
+        m = hist[(k_old - int(p[KF_DELAY])) % hist.shape[0]]
+        x[FLOW_EST], x[BIAS_EST] = kalman.correct(p[KF_A], p[KF_GAIN_FLOW], p[KF_GAIN_BIAS], x[FLOW_EST],
+                                                  x[BIAS_EST], m, meas)
+        u = ff
+        if r > 0.0:  # a reference of no flow closes the valve whatever the bias estimate says
+            u = ffw.invert_one(bank, b, y, work, r - x[BIAS_EST])
+        duty = limits.limit(u, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
+        fb = u - ff
+    if mode != PID:
+        model = ffw.forward_one(bank, b, y, duty)  # the model's memory follows the applied duty
+        if mode == FF_KF:
+            hist[k_new] = model
+    x[DUTY] = duty
+    return duty, ff, fb
 
 
 @njit(cache=True, inline="always")
@@ -300,6 +312,7 @@ def _live_step(mode, has_lead, F, I, L, ref_lpm, meas_lpm, ref_ff_lpm, dt):
     # One argument per buffer instead of the kernel's 33: the dispatcher's per-argument cost
     # (~0.15 us each) was most of a live step. Views by the layout of Live; the state is saved
     # before it advances (Live.rollback), and the filter's prediction taken from the state before.
+    F, I, L = borrow(F), borrow(I), borrow(L)  # views without reference counting (models.borrow)
     P = _rows(F, L, 0)
     X, Y, H = _rows(F, L, _X), _rows(F, L, _FWD), _rows(F, L, _HIST)
     pos = _col(I, L, _POS)

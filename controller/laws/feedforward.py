@@ -228,7 +228,7 @@ def _step(method, r, w, a, p, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, c
         flow[j] = _forward(bk, j, out_state[j], duty[j])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def invert_one(bk, j, state, work, ref):
     """The feedforward duty (%) of candidate j for flow ``ref`` (L/min) from ``state``; ``work``: scratch (n,)."""
     closed, fc, fh, margin = bk[13], bk[17], bk[18], bk[19]
@@ -239,7 +239,7 @@ def invert_one(bk, j, state, work, ref):
     return _solve(bk, j, state, work, onset, -np.inf) - margin[j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def forward_one(bk, j, state, duty):
     """Model flow (L/min) of candidate j after duty ``duty`` (%); advances ``state`` in place."""
     return _forward(bk, j, state, duty)

@@ -3,8 +3,12 @@
 :func:`closed_loop` runs B candidates of one controller word against B
 simulated valves in simulated time, with the live loop's timing convention
 (the flow measured at step k is the valve's answer to the duty of step k-1)
-but without its watchdog and transports: the live loop's compiled laws
-(:func:`controller.laws.control.advance`) for a batch of B instead of one.
+but without its watchdog and transports. One compiled kernel runs the whole
+batch: loop by loop, each through all its steps, with the live loop's own
+law (:func:`controller.laws.control.law_step`) and valve
+(:func:`plant_sim.kernel.plant_step`), so a loop's state stays in the cache
+and no step returns to Python. Its rows equal, bit for bit, those of the
+earlier form that stepped the whole batch once per period from Python.
 
 A group of C candidates of one controller word is repeated over the V plant
 variants (candidate-major: loop ``c * V + v`` is candidate c on variant v)
@@ -24,25 +28,66 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from controller.laws import control
+from models.borrow import borrow
+from plant_sim import kernel
 
 from . import metrics
 
 
 @dataclass(frozen=True)
 class ClosedLoop:
-    """Columns (N, B) of a batch closed-loop simulation, and per-candidate IAE (L)."""
+    """Columns (N, B) of a batch closed-loop simulation, and per-candidate IAE (L).
+
+    ``true_flow_lpm``: the flow at the sensor without sensor errors, of the plant step that gave
+    each row's measurement.
+    """
 
     t_s: np.ndarray
     ref_lpm: np.ndarray
     flow_lpm: np.ndarray
     duty_pct: np.ndarray
+    true_flow_lpm: np.ndarray
 
     def iae(self) -> np.ndarray:
         """∫|ref - flow| dt in litres per candidate."""
         dt = self.t_s[1] - self.t_s[0]
         return np.sum(np.abs(self.ref_lpm[:, None] - self.flow_lpm), axis=0) * dt / 60.0
+
+
+@njit(cache=True)
+def _run(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_inv, w_inv, h_inv, g_inv, closed, x0,
+         dc, dh, fc, fh, margin, beta, X, Y, H, pos0, PP, PMP, PEV, keys, ms, xs, buf, k0, meas0, ref, ahead, preview, dt,
+         work, flow, duty, true_flow):
+    # Loop by loop, each through all its steps: its state stays in the cache, and no step returns
+    # to Python. The law (control.law_step) and the valve (kernel.plant_step) are the live loop's.
+    # borrowed views (models.borrow): the views of the laws' rows then cost no atomics
+    bank = (borrow(method), borrow(r), borrow(w), borrow(a), borrow(p_asym), borrow(h), borrow(g), borrow(offset),
+            borrow(floor), borrow(r_inv), borrow(w_inv), borrow(h_inv), borrow(g_inv), borrow(closed), borrow(x0),
+            borrow(dc), borrow(dh), borrow(fc), borrow(fh), borrow(margin), borrow(beta))
+    P, X, Y, H = borrow(P), borrow(X), borrow(Y), borrow(H)
+    PP, PMP, PEV, keys, ms, xs, buf = borrow(PP), borrow(PMP), borrow(PEV), borrow(keys), borrow(ms), borrow(xs), borrow(buf)
+    n = ref.shape[0]
+    L = H.shape[1]
+    work = borrow(work)  # the inverse's scratch
+    for b in range(X.shape[0]):
+        p, x, y, hist = P[b], X[b], Y[b], H[b]
+        Pb, MPb, EVb, kb, msb, xb, bufb = PP[b], PMP[b], PEV[b], keys[b], ms[b], xs[b], buf[b]
+        meas = meas0[b]
+        k_old = pos0
+        for k in range(n):
+            k_new = (k_old + 1) % L
+            d = control.law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref[k], meas,
+                                 ahead[k + preview[b]], dt)[0]
+            if mode == control.FF_KF:
+                k_old = k_new
+            flow[b, k] = meas
+            duty[b, k] = d
+            if k + 1 < n:  # the valve's answer, measured at the next step
+                meas, true_flow[b, k + 1], _, _ = kernel.plant_step(Pb, MPb, EVb, kb, msb, xb, bufb, k0 + k, d,
+                                                                    False)
 
 
 def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, rate_hz: float,
@@ -58,19 +103,17 @@ def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, ra
     ps, out = plant.step(ps, np.full(B, duty0_pct))
     meas = np.ascontiguousarray(out.flow_lpm)
     s = control.init(params, meas, duty0_pct)
-    kernel = params.kernel
-    n = len(ref_lpm)
-    flow, duty = np.empty((n, B)), np.empty((n, B))
-    preview = np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,))
-    ahead = np.concatenate([ref_lpm, np.full(int(preview.max(initial=0)), ref_lpm[-1])])
-    ref_now, cmd = np.empty(B), np.empty((B, 4))
-    for k in range(n):
-        ref_now.fill(ref_lpm[k])
-        control.advance(kernel, s, ref_now, meas, ahead[k + preview], dt, cmd)
-        flow[k], duty[k] = meas, cmd[:, 0]
-        ps, out = plant.step(ps, duty[k])
-        meas = np.ascontiguousarray(out.flow_lpm)
-    return ClosedLoop(np.arange(n) * dt, np.asarray(ref_lpm, dtype=np.float64), flow, duty)
+    kernel_params = params.kernel
+    ref = np.ascontiguousarray(ref_lpm, dtype=np.float64)
+    n = len(ref)
+    flow, duty, true_flow = np.empty((B, n)), np.empty((B, n)), np.empty((B, n))
+    true_flow[:, 0] = out.true_flow_lpm
+    preview = np.ascontiguousarray(np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,)))
+    ahead = np.concatenate([ref, np.full(int(preview.max(initial=0)), ref[-1])])
+    _run(kernel_params.mode, kernel_params.lead, kernel_params.P, *kernel_params.bank, s.x, s.forward, s.hist,
+         int(s.pos[0]), plant._P, plant._MP, plant._EV, plant._keys, ps.model, ps.x, ps.buf, ps.k, meas, ref, ahead,
+         preview, dt, np.empty(s.forward.shape[1]), flow, duty, true_flow)
+    return ClosedLoop(np.arange(n) * dt, ref, flow.T, duty.T, true_flow.T)
 
 
 def stack_params(items: list):
@@ -91,25 +134,6 @@ def stack_params(items: list):
     if any(x != first for x in items):
         raise ValueError(f"cannot batch differing values {first!r} and {next(x for x in items if x != first)!r}")
     return first
-
-
-class _Recorder:
-    """A BatchPlant that keeps the flow without sensor errors of every step (for the step figures)."""
-
-    def __init__(self, plant, n_steps: int):
-        self.plant = plant
-        self.true_flow_lpm = np.empty((n_steps + 1, len(plant)))
-        self.k = 0
-
-    def init(self, duty0_pct):
-        return self.plant.init(duty0_pct)
-
-    def step(self, state, duty_pct):
-        state, out = self.plant.step(state, duty_pct)
-        if self.k < len(self.true_flow_lpm):
-            self.true_flow_lpm[self.k] = out.true_flow_lpm
-        self.k += 1
-        return state, out
 
 
 @dataclass(frozen=True)
@@ -136,10 +160,8 @@ def response(params: control.ControllerParams, plants: list, ref_lpm: np.ndarray
         raise ValueError(f"batch {params.batch} is not a multiple of {V} plant variants")
     n_loops = params.batch
     bp = BatchPlant(list(plants) * (n_loops // V), rate_hz, [seed] * n_loops)
-    rec = _Recorder(bp, len(ref_lpm))
-    res = closed_loop(params, rec, np.asarray(ref_lpm, dtype=np.float64), rate_hz, preview_steps)
-    # flow measured at step k answers the duty of step k-1: recorder row k is that plant step
-    return Response(res.ref_lpm, res.flow_lpm.T, rec.true_flow_lpm[:len(ref_lpm)].T, res.duty_pct.T, 1.0 / rate_hz)
+    res = closed_loop(params, bp, np.asarray(ref_lpm, dtype=np.float64), rate_hz, preview_steps)
+    return Response(res.ref_lpm, res.flow_lpm.T, res.true_flow_lpm.T, res.duty_pct.T, 1.0 / rate_hz)
 
 
 def figures(r: Response, n_variants: int) -> dict:

@@ -17,10 +17,13 @@ late command is worth less than the next one.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
+import math
 import os
 import sys
+import threading
 import time
 
 import zenoh
@@ -185,8 +188,22 @@ class Inbox:
     """
 
     def __init__(self, session, key: str, parse=parse_number, guard: SourceGuard | None = None, ring: int = RING,
-                 budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES):
-        self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
+                 budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES, on_sample=None):
+        if on_sample is None:
+            self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
+            self._try_recv = self.sub.try_recv
+        else:  # a callback keeps the ring and signals each sample (Doorbell): for a loop that sleeps until then
+            kept = collections.deque(maxlen=ring)
+
+            def take(sample):
+                kept.append(sample)
+                on_sample()
+
+            def try_recv():
+                return kept.popleft() if kept else None
+
+            self.sub = session.declare_subscriber(key, take)
+            self._try_recv = try_recv
         self.parse, self.guard, self.ring, self.budget_s, self.max_bytes = parse, guard, ring, budget_s, max_bytes
 
     def poll(self, accept=None) -> tuple[Message | None, int, int]:
@@ -198,7 +215,7 @@ class Inbox:
         latest, bad, spoofed = None, 0, 0
         pc = time.perf_counter
         end = pc() + self.budget_s
-        try_recv, parse, guard = self.sub.try_recv, self.parse, self.guard
+        try_recv, parse, guard = self._try_recv, self.parse, self.guard
         for _ in range(self.ring):
             s = try_recv()
             if s is None:
@@ -220,6 +237,42 @@ class Inbox:
 
     def undeclare(self) -> None:
         self.sub.undeclare()
+
+
+class Doorbell:
+    """Rings at each measurement, so a loop triggered by measurements sleeps until one arrives.
+
+    :meth:`ring` runs on Zenoh's thread for each sample (after the sample is
+    kept); :meth:`wait` sleeps (GIL released) until a ring or a deadline. The
+    callback costs Zenoh's thread the GIL for microseconds: the loop waiting
+    here does not hold it (a loop spinning on it would delay every sample:
+    the GIL trap of the field notes).
+    """
+
+    def __init__(self):
+        self._event = threading.Event()
+        self._lock = threading.Lock()
+        self._count = 0
+        self._last_s = math.nan
+
+    def ring(self) -> None:
+        t = time.perf_counter()
+        with self._lock:
+            self._count += 1
+            self._last_s = t
+        self._event.set()
+
+    def wait(self, deadline_s: float) -> tuple[float | None, int]:
+        """Until a measurement arrived or ``deadline_s`` (``time.perf_counter``):
+        ``(arrival time of the newest or None, measurements it superseded)``."""
+        timeout = deadline_s - time.perf_counter()
+        if timeout > 0:
+            self._event.wait(timeout)
+        with self._lock:
+            n, self._count = self._count, 0
+            self._event.clear()
+            last = self._last_s
+        return (last, n - 1) if n else (None, 0)
 
 
 class _Publisher:
@@ -256,10 +309,13 @@ class ZenohTransport:
     silence: a second publisher of ``meas/flow`` is ``spoofed_measurement``.
     """
 
-    def __init__(self, session, valve_id: str = "insp", stale_s: float = 0.05):
+    def __init__(self, session, valve_id: str = "insp", stale_s: float = 0.05, trigger: str = "period"):
         k = f"vent/valve/{valve_id}"
         self.session = session
-        self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s))
+        # trigger "measurement": each measurement rings the loop awake (wait_measurement)
+        self.doorbell = Doorbell() if trigger == "measurement" else None
+        self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s),
+                             on_sample=self.doorbell.ring if self.doorbell is not None else None)
         self.ref_in = Inbox(session, f"{k}/ref/flow")
         self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word)
         self.supply_in = Inbox(session, f"{k}/{AUX_KEYS['supply_bar']}")
@@ -282,6 +338,10 @@ class ZenohTransport:
             return None, rejects
         self.meas_seq = m.seq
         return m.value, rejects
+
+    def wait_measurement(self, deadline_s: float) -> tuple[float | None, int]:
+        """Sleep until a measurement arrives or ``deadline_s`` (:meth:`Doorbell.wait`; trigger ``measurement``)."""
+        return self.doorbell.wait(deadline_s)
 
     def poll_mode(self) -> tuple[str | None, int]:
         """The newest controller word asked for on ``ctrl/mode``, and how many requests were malformed."""
