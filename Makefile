@@ -3,17 +3,25 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+PRECOMPILED := $(VENV)/.precompiled
 DATA := ../shared/data
 
 .PHONY: setup test run bench model clean
 
-setup: $(STAMP)
+setup: $(PRECOMPILED)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
+
+# Ahead of time: the kernels of run and sweep compiled into numba's cache after install and after their
+# sources change, so the first run, sweep or test after either compiles nothing.
+KERNELS := $(wildcard controller/laws/*.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py)
+$(PRECOMPILED): $(STAMP) $(KERNELS)
+	$(PY) -m controller.precompile
+	touch $(PRECOMPILED)
 
 test: setup
 	$(PY) -m pytest -q

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import socket
 import subprocess
@@ -33,8 +34,10 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from controller.config import controller_params, load_run_config, preview_s  # noqa: E402
+from controller.laws import control, kalman  # noqa: E402
 from controller.loop import Loop, ProfileReference, RealClock  # noqa: E402
 from controller.run_summary import summary  # noqa: E402
+from controller.supervisor import Supervisor  # noqa: E402
 from controller.transport.sim import SimTransport  # noqa: E402
 from models.model import load_model  # noqa: E402
 from plant_sim.plant import Plant, load_plant  # noqa: E402
@@ -47,12 +50,47 @@ def pct(x):
     return f"p50 {x['p50']:8.1f}  p99 {x['p99']:8.1f}  max {x['max']:8.0f}"
 
 
-def in_process(cfg, model, spin_s: float, rt: int) -> dict:
+class PureStepSupervisor(Supervisor):
+    """The previous live step (the baseline of compute_us): the pure ``control.step`` per period, fresh
+    one-element arrays in and out, the Kalman prediction from ``kalman.predict``."""
+
+    def step(self, ctrl, ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults):
+        p = self.params
+        predicted = float(kalman.predict(p.kf, ctrl.kf)[0]) if p.kf is not None else None
+        m = float(kalman.delayed_model(p.kf, ctrl.kf)[0]) if p.kf is not None else None
+        new, cmd = control.step(p, ctrl, np.array([ref_lpm]), np.array([meas_lpm]), dt_s, np.array([ref_ff_lpm]))
+        if predicted is not None:  # the same health bookkeeping
+            g = 1.0 - math.exp(-dt_s / self.settings.tau_s)
+            self._innov_lp += (meas_lpm - predicted - self._innov_lp) * g
+            a = float(p.kf.a[0])
+            lag = m if self._model_lag != self._model_lag else a * self._model_lag + (1.0 - a) * m
+            self._model_lag = lag
+            self.mismatch_lpm = meas_lpm - lag
+        return new, (float(cmd.duty_pct[0]), float(cmd.ff_pct[0]), float(cmd.fb_pct[0]), float(cmd.limit_pct[0]))
+
+
+class PurePlantTransport(SimTransport):
+    """The previous embedded valve (the baseline): the pure ``Plant.step``, a new state each period."""
+
+    def __init__(self, plant):
+        super().__init__(plant)
+        self._state = plant.init(0.0)
+
+    def command(self, duty_pct, t_s):
+        self._state, self.last = self.plant.step(self._state, duty_pct)
+        self._meas = self.last.flow_lpm
+
+
+def in_process(cfg, model, spin_s: float, rt: int, previous: bool = False) -> dict:
     settings = dataclasses.replace(cfg.loop, spin_s=spin_s, rt_priority=rt)
     pp = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
     ref = ProfileReference(BreathProfile(**cfg["profile"]).value, preview_s(cfg, "profile"))
-    loop = Loop(controller_params(cfg, "ff+kf", model), SimTransport(Plant(pp, settings.rate_hz)), ref, settings,
-                clock=RealClock(spin_s))
+    params = controller_params(cfg, "ff+kf", model)
+    if previous:
+        sup, valve = PureStepSupervisor({"ff+kf": params}, "ff+kf"), PurePlantTransport(Plant(pp, settings.rate_hz))
+    else:
+        sup, valve = Supervisor.fixed(params), SimTransport(Plant(pp, settings.rate_hz))
+    loop = Loop(sup, valve, ref, settings, clock=RealClock(spin_s))
     return summary(loop.run(SECONDS), "ff+kf", "sim")
 
 
@@ -153,6 +191,17 @@ def main() -> None:
         base = base or s["lateness_us"]["p99"]
         print(f"  {name:34s} {pct(s['lateness_us'])}   {pct(s['compute_us'])}   overruns {s['overruns']}, "
               f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline")
+    print("\nthe step's own work (compute us), configured scheduling, the previous step as baseline (interleaved)")
+    runs = {"previous: pure step, fresh arrays": [], "now: in place, one compiled call": []}
+    for _ in range(2):
+        for name in runs:
+            runs[name].append(in_process(cfg, model, spin, rt, previous=name.startswith("previous")))
+    base = {q: np.median([s["compute_us"][q] for s in runs["previous: pure step, fresh arrays"]]) for q in ("p50", "p99")}
+    for name, ss in runs.items():
+        q = {k: np.median([s["compute_us"][k] for s in ss]) for k in ("p50", "p99")}
+        tr = ss[0]["tracking"]
+        print(f"  {name:34s} compute p50 {q['p50']:6.1f} ({q['p50'] / base['p50']:.2f}x)  p99 {q['p99']:6.1f} "
+              f"({q['p99'] / base['p99']:.2f}x)   tracking MAE {tr['mae_lpm']:.3f} L/min, IAE {tr['iae']:.4f} L")
     print("\nover Zenoh (controller process, this process as the valve)")
     runs = {}
     for trigger in ("period", "measurement"):

@@ -230,3 +230,87 @@ def test_batch_closed_loop_matches_the_live_loop(cfg, model):
         m = n - preview  # closed_loop holds the last reference past its end; the profile goes on
         np.testing.assert_allclose(res.columns["duty_pct"][:m], sim.duty_pct[:m, j], atol=1e-6)
         np.testing.assert_allclose(res.columns["flow_lpm"][:m], sim.flow_lpm[:m, j], atol=1e-6)
+
+
+class OwnClockSensor:
+    """A sensor on its own clock for ``trigger = "measurement"``: measurements arrive at ``arrivals_s``
+    (simulated clock), each the flow of a first-order valve driven by the last command."""
+
+    def __init__(self, clock, arrivals_s):
+        self.clock, self.arrivals = clock, np.asarray(arrivals_s)
+        self.signalled = self.polled = 0  # arrivals signalled by wait_measurement, taken by a poll
+        self.flow = 0.0
+        self.commands = []
+
+    def _arrived(self) -> int:
+        return int(np.searchsorted(self.arrivals, self.clock.now() + 1e-12, side="right"))
+
+    def wait_measurement(self, deadline_s):
+        if self._arrived() == self.signalled:  # nothing new: sleep until the next arrival or the deadline
+            n = self._arrived()
+            if n == len(self.arrivals) or self.arrivals[n] > deadline_s:
+                self.clock.t = max(self.clock.t, deadline_s)
+                return None, 0
+            self.clock.t = float(self.arrivals[n])
+        n = self._arrived()
+        new, self.signalled = n - self.signalled, n
+        return float(self.arrivals[n - 1]), new - 1
+
+    def poll_measurement(self, accept):
+        n = self._arrived()
+        if n == self.polled:
+            return None, 0
+        self.polled = n
+        return self.flow, 0
+
+    def command(self, duty_pct, t_s):
+        self.commands.append((self.clock.now(), duty_pct))
+        self.flow += 0.3 * (duty_pct - self.flow)
+
+    def publish_error(self, t_s, error_lpm):
+        pass
+
+    def publish_status(self, t_s, status):
+        pass
+
+
+def test_measurement_trigger_steps_at_each_arrival_and_the_period_stays_the_watchdog(cfg, model):
+    """Jittered arrivals (0.6-1.4 periods apart) each get a step at their own instant; when they stop,
+    the watchdog steps every WATCHDOG_PERIODS periods and the loop goes safe with a stale fault."""
+    import dataclasses
+
+    from controller.loop import WATCHDOG_PERIODS
+
+    period = 1.0 / RATE
+    gaps = np.random.default_rng(3).uniform(0.6, 1.4, 400) * period
+    arrivals = 0.0102 + np.cumsum(gaps)  # the first 10 ms without measurements
+    clock = SimClock()
+    sensor = OwnClockSensor(clock, arrivals)
+    settings = dataclasses.replace(SETTINGS, trigger="measurement")
+    res = Loop(controller_params(cfg, "ff+pid", model), sensor, ProfileReference(lambda t: 30.0), settings,
+               clock=clock).run(arrivals[-1] + 0.2)
+    t = res.columns["t_s"]
+    stepped = set(np.round(t, 9))
+    assert all(round(a, 9) in stepped for a in arrivals)  # a step at every arrival...
+    during = (t >= arrivals[0]) & (t <= arrivals[-1])
+    assert np.all(np.isin(np.round(t[during], 9), np.round(arrivals, 9)))  # ...and none between them
+    assert np.all(res.columns["lateness_s"][during] == 0.0)  # each step at its measurement's arrival
+    assert res.overruns == 0
+    before, after = t[t < arrivals[0]], t[t > arrivals[-1]]
+    for watchdog in (before, after):
+        assert np.allclose(np.diff(watchdog), WATCHDOG_PERIODS * period)
+    stale = {f["kind"]: f["first_s"] for f in res.faults.to_list()}
+    assert arrivals[-1] + settings.stale_ms * 1e-3 <= stale["stale"] <= (arrivals[-1] + settings.stale_ms * 1e-3
+                                                                         + WATCHDOG_PERIODS * period)
+    assert np.all(res.columns["state"][t > stale["stale"]] == SAFE)
+    assert np.all(res.columns["state"][during][5:] == RUNNING)
+
+
+def test_measurement_trigger_needs_a_transport_that_signals_measurements(cfg, model):
+    import dataclasses
+
+    settings = dataclasses.replace(SETTINGS, trigger="measurement")
+    loop = Loop(controller_params(cfg, "ff", model), SimTransport(sim_plant(cfg)), ProfileReference(lambda t: 30.0),
+                settings, clock=SimClock())
+    with pytest.raises(ValueError, match="signals measurements"):
+        loop.run(0.01)
