@@ -196,7 +196,8 @@ def main() -> None:
     for _ in range(2):
         for name in runs:
             runs[name].append(in_process(cfg, model, spin, rt, previous=name.startswith("previous")))
-    base = {q: np.median([s["compute_us"][q] for s in runs["previous: pure step, fresh arrays"]]) for q in ("p50", "p99")}
+    prev = runs["previous: pure step, fresh arrays"]
+    base = {q: np.median([s["compute_us"][q] for s in prev]) for q in ("p50", "p99")}
     for name, ss in runs.items():
         q = {k: np.median([s["compute_us"][k] for s in ss]) for k in ("p50", "p99")}
         tr = ss[0]["tracking"]

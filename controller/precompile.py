@@ -6,7 +6,8 @@ milliseconds. Run once after installing, this is ahead-of-time compilation
 where it pays: the first ``valvectl run`` and ``valvectl sweep`` after
 install then compile nothing (a sweep's kernel alone takes tens of seconds
 to compile). It runs the shipped run configuration's words for a few steps:
-the live loop's law (:class:`controller.laws.control.Live`) and valve
+the live loop's warm-up (every word's step, resume and switch:
+:meth:`controller.supervisor.Supervisor.warm_up`) and valve
 (:class:`plant_sim.plant.RunningPlant`), and the sweep's closed loop
 (:func:`controller.sweep.simulate.closed_loop`), which have one signature each.
 
@@ -25,7 +26,7 @@ def precompile(config_path: str = "config/run.toml") -> float:
     from models.model import load_model
     from plant_sim.plant import BatchPlant, Plant, load_plant
 
-    from .config import controller_params, load_run_config
+    from .config import controller_params, load_run_config, supervisor
     from .laws import control
     from .sweep import simulate
 
@@ -35,11 +36,9 @@ def precompile(config_path: str = "config/run.toml") -> float:
     valve = load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"])
     plant = Plant(valve, cfg.loop.rate_hz)
     plant.running(plant.init(0.0)).step(10.0)
+    supervisor(cfg, cfg[""]["controller"], model).warm_up(1.0 / cfg.loop.rate_hz, cfg.loop.safe_duty_pct)
     for word in control.MODES:
         p = controller_params(cfg, word, model)
-        live = control.Live(p)
-        live.load(control.init(p, 0.0))
-        live.step(10.0, 0.0, 10.0, 1.0 / cfg.loop.rate_hz)
         simulate.closed_loop(control.repeat(p, 2), BatchPlant([valve, valve], cfg.loop.rate_hz), np.full(3, 10.0),
                              cfg.loop.rate_hz, 1)
     return time.perf_counter() - t0

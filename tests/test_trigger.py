@@ -5,7 +5,6 @@ Free ports on 127.0.0.1, peer mode, multicast scouting off.
 from __future__ import annotations
 
 import json
-import signal
 import threading
 import time
 
@@ -14,7 +13,7 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from controller.transport.zenoh import Doorbell  # noqa: E402
-from tests.zenoh_helpers import free_port, rows, valvectl, wait_for  # noqa: E402
+from tests.zenoh_helpers import free_port, kill_valve_then_stop, reap, rows, valvectl, wait_for  # noqa: E402
 
 
 def test_doorbell_wakes_at_a_ring_counts_the_superseded_and_times_out_at_the_deadline():
@@ -46,18 +45,9 @@ def test_controller_triggered_by_measurements_drives_the_valve_node_and_goes_saf
     try:
         wait_for(lambda: sum(r[6] == "running" for r in rows(rec)[-300:]) > 200, "the controller running",
                  (ctrl, node))
-        n_before = len(rows(rec))
-        node.send_signal(signal.SIGKILL)
-        node.wait(10)
-        wait_for(lambda: len(rows(rec)) > n_before + 100, "watchdog steps after the kill", (ctrl,))
-        ctrl.send_signal(signal.SIGTERM)
-        out, err = ctrl.communicate(timeout=30)
-        assert ctrl.returncode == 0, err
+        kill_valve_then_stop(ctrl, node, rec, 100)  # the watchdog's steps go on without measurements
     finally:
-        for p in (ctrl, node):
-            if p.poll() is None:
-                p.kill()
-                p.wait()
+        reap(ctrl, node)
     s = json.loads(summ.read_text())
     faults = {f["kind"] for f in s["faults"]}
     assert "stale" in faults  # the measurements stopped: the watchdog's steps took the loop to safe

@@ -16,7 +16,8 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from controller.loop import RECORD_COLUMNS  # noqa: E402
-from tests.zenoh_helpers import client_session, free_port, rows, valvectl, wait_for  # noqa: E402
+from tests.zenoh_helpers import (client_session, free_port, kill_valve_then_stop, reap, rows,  # noqa: E402
+                                 valvectl, wait_for)
 
 
 def test_two_processes_flood_and_killed_valve(tmp_path):
@@ -53,18 +54,9 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
             tokens = set()
             while (x := alive.try_recv()) is not None:
                 tokens.add(str(x.key_expr))
-        n_before = len(rows(rec))
-        node.send_signal(signal.SIGKILL)
-        node.wait(10)
-        wait_for(lambda: len(rows(rec)) > n_before + 500, "steps after the kill", (ctrl,))
-        ctrl.send_signal(signal.SIGTERM)
-        out, err = ctrl.communicate(timeout=30)
-        assert ctrl.returncode == 0, err
+        kill_valve_then_stop(ctrl, node, rec, 500)
     finally:
-        for p in (ctrl, node):
-            if p.poll() is None:
-                p.kill()
-                p.wait()
+        reap(ctrl, node)
 
     # DESIGN.md payloads on every key the controller and the valve publish, and both liveliness tokens.
     by_key = {}

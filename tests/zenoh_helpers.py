@@ -59,3 +59,25 @@ def client_session(ep: str):
     return zenoh.open(c)
 
 
+
+
+def kill_valve_then_stop(ctrl, node, rec, steps_after: int) -> None:
+    """SIGKILL the valve node, wait for ``steps_after`` more controller steps in ``rec``, then SIGTERM the
+    controller and check it ended cleanly (its summary written)."""
+    import signal
+
+    n_before = len(rows(rec))
+    node.send_signal(signal.SIGKILL)
+    node.wait(10)
+    wait_for(lambda: len(rows(rec)) > n_before + steps_after, "steps after the kill", (ctrl,))
+    ctrl.send_signal(signal.SIGTERM)
+    out, err = ctrl.communicate(timeout=30)
+    assert ctrl.returncode == 0, err
+
+
+def reap(*procs) -> None:
+    """Kill whichever of ``procs`` still runs."""
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
