@@ -189,7 +189,9 @@ def size_effect(word: str, target_rms: float, exc: str, seed: int, lo: float, it
     lim_lo, lim_hi = PLANT_EFFECTS[word].limits
     if word == "saturation":  # smaller full-open flow = larger effect
         flows = _true_flow((), exc, seed, lo)
-        a, b = float(np.percentile(flows, 30)), float(np.max(flows))
+        # never below the flow most of the recording holds (a breath's resting flow): a clip there
+        # flattens the whole recording into a constant the PI absorbs
+        a, b = max(float(np.percentile(flows, 30)), 1.05 * float(np.median(flows))), float(np.max(flows))
         for _ in range(iters):
             m = 0.5 * (a + b)
             a, b = (m, b) if effect_rms(word, m, exc, seed, lo) > target_rms else (a, m)
@@ -250,12 +252,36 @@ def closed_loop_recording(effects: tuple, seed: int, noise_lpm: float, lo_pct: f
     return Recording(f"<{label}>", {k: v for k, v in cols.items() if k != "state"}, {"state": state})
 
 
-def matrix(seeds=(1,), noise: float = 0.5, sizes=MATRIX_SIZES, excitations=MATRIX_EXCITATIONS, words=WORDS) -> list:
+#: A matrix case is kept when its effect reaches at least this fraction of the magnitude asked for.
+REACHED = 0.5
+
+
+def reached(case: Case) -> float:
+    """The unabsorbed RMS of the case's (single) effect in multiples of its noise."""
+    (w, v), = case.effects
+    if w == "sensor_offset":
+        return case.size  # sized exactly
+    return effect_rms(w, v, case.excitation, case.seed, case.lo_pct) / case.noise_lpm
+
+
+def matrix(seeds=(1,), noise: float = 0.5, sizes=MATRIX_SIZES, excitations=MATRIX_EXCITATIONS, words=WORDS,
+           left_out: list | None = None) -> list:
     """The magnitude x excitation matrix: every word alone at every size on every excitation, and each
-    excitation effect free."""
+    excitation effect free.
+
+    A word that an excitation cannot show at a magnitude within its search range (four times its
+    plausible maximum: an asymmetry of the descending branch on breaths that fall straight back to
+    their resting duty, a dead zone between the levels of steps, a 0.2 s delay on a slow sweep) is
+    left out at that magnitude, with the magnitude it reaches appended to ``left_out`` as
+    ``(word, excitation, seed, size, reached)``, rather than counted as a case of that size."""
     out = []
     for exc, seed in itertools.product(excitations, seeds):
         out.append(Case((), exc, seed, noise, with_model=exc == "closed_loop"))
         for w, size in itertools.product(words, sizes):
-            out.append(make_case((w,), exc, seed, noise, size))
+            case = make_case((w,), exc, seed, noise, size)
+            got = reached(case)
+            if got >= REACHED * size:
+                out.append(case)
+            elif left_out is not None:
+                left_out.append((w, exc, seed, size, got))
     return out

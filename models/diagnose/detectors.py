@@ -56,12 +56,22 @@ CHANGED = 0.002
 #: the named one's, the recording cannot separate them and both are reported, each as the other's
 #: alternative.
 AMBIGUOUS = 0.02
+#: A held-out misfit (RMS) above this many times the sensor noise is gross: every word's exact law is
+#: refined whatever its linearized screen found.
+GROSS = 3.0
+#: A time constant at the unresolved end of its grid gives way to a resolved one whose training error
+#: is within this fraction of the reference's (:func:`_resolved_best`).
+TIE = 0.005
 #: Time parameter of each word of :data:`DYNAMIC`.
 TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
 #: Function evaluations of one exact-law refinement (besides those of its Jacobians).
 REFINE_EVALS = 16
 #: Training rows an exact-law refinement fits on (a regular subsample beyond this).
 REFINE_ROWS = 12000
+#: Training rows the starts of an exact-law refinement are compared on (they only need ranking).
+START_ROWS = 4000
+#: Grid points of a static law re-ranked with the PI unbent (:func:`_unbent_best`), with their neighbours.
+STATIC_LEADS = 5
 #: Training rows the PI is refitted on at each grid point of a joint screen (a regular subsample
 #: beyond this; 51 weights are well placed by far fewer, and the refit is the screen's cost).
 SCREEN_ROWS = 30000
@@ -136,9 +146,11 @@ def _candidate(word, params, cv: CVResult, before: CVResult, base, law) -> Candi
 
 
 def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signals, folds: Folds,
-                margin: float = 0.0) -> Candidate:
+                margin: float = 0.0, gross: bool = False) -> Candidate:
     """Cross-validated test of ``word`` added to ``chain``: the screen, then the exact law when the
-    screen's training error falls by more than ``margin``."""
+    screen's training error falls by more than ``margin``, or whenever the misfit is ``gross``
+    (the linearized columns then say nothing of a large effect: a coil 90 K warm shifts the
+    effective duty by a third, far past a first-order column)."""
     w = VOCABULARY[word]
     points = grid_points(w, sig, base)
     results = [cross_validate(design(word, base, sig, {**chain, word: p}, folds)[0], sig.flow_lpm, folds)
@@ -146,7 +158,9 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
     train = np.array([r.train for r in results])          # (G, K)
     test = np.array([r.test for r in results])
     pick = np.argmin(train, axis=0)                        # per fold, chosen on its training rows
-    best_i = int(np.argmin(train.sum(axis=1)))
+    best_i = _resolved_best(w, points, train.sum(axis=1), float(before.train.sum()))
+    if w.static and base.refit:
+        best_i = _unbent_best(word, points, train.sum(axis=1), chain, base, sig, folds)
     best = points[best_i]
     cv = CVResult(results[best_i].sse.copy(), results[best_i].n)
     cv.sse[np.diag_indices(folds.k)] = test[pick, np.arange(folds.k)]
@@ -159,11 +173,50 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
         if cv_r.test.sum() < cv.test.sum():
             cv, new_base = cv_r, refit
     cand = _candidate(word, best, cv, before, new_base, "exact" if w.is_exact(best) else "linearized")
-    if cand.train_gain > margin:
+    if cand.train_gain > margin or gross:
         exact = _exact(w, chain, cand, before, base, sig, folds)
         if exact is not None and exact.train_gain >= cand.train_gain:
             return exact
     return cand
+
+
+def _resolved_best(w: Word, points: list, train_sse: np.ndarray, ref_sse: float) -> int:
+    """The grid point of least training error, unless it sits at the unresolved end of the word's
+    time constant (:attr:`Word.unresolved`) and a resolved point fits within :data:`TIE` as well:
+    the time constant is then poorly determined (a creep after the slow reversals of a sweep is
+    mostly absorbed by the PI refitted with it), not beyond the range, and the word is tested there."""
+    best = int(np.argmin(train_sse))
+    if w.unresolved is None or w.unresolved[0] not in points[best]:
+        return best
+    key, side = w.unresolved
+    vals = np.array([p[key] for p in points])
+    end = vals.min() if side == "low" else vals.max()
+    inner = np.flatnonzero(vals != end)
+    if vals[best] != end or not len(inner):
+        return best
+    j = int(inner[np.argmin(train_sse[inner])])
+    return j if train_sse[j] <= train_sse[best] + TIE * ref_sse else best
+
+
+def _unbent_best(word: str, points: list, bent_sse: np.ndarray, chain: dict, base: Base, sig: Signals,
+                 folds: Folds) -> int:
+    """The grid point of a static law whose training error is least with the PI refitted without the
+    rows it explains, among the :data:`STATIC_LEADS` best with the PI as it is and their neighbours.
+
+    A PI fitted through a dead zone's shut rows is bent (its gain and offset stretched to reach
+    zero flow), and the cracking duty it prefers is off by a held level: the one that fits best
+    once the PI is unbent is the law's.
+    """
+    order = np.argsort(bent_sse)[:STATIC_LEADS]
+    near = sorted({int(j) for i in order for j in (i - 1, i, i + 1) if 0 <= j < len(points)})
+    rows = _subsample(folds.train, START_ROWS)
+    y = sig.flow_lpm
+
+    def sse(i):
+        ch = {**chain, word: points[i]}
+        return train_sse(build(unbend(base, sig, ch, rows), sig, ch), y, rows)
+
+    return min(near, key=sse)
 
 
 def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base, sig: Signals,
@@ -176,7 +229,7 @@ def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base
     starts = w.exact_starts(screen.params, coef if coef is not None else 0.0, sig, b)
     if not starts:
         return None
-    rows = _subsample(folds.train)
+    rows = _subsample(folds.train, START_ROWS)
     start = min(starts, key=lambda p: train_sse(design(w.word, base, sig, {**chain, w.word: p}, folds, rows)[0],
                                                 sig.flow_lpm, rows))
     params = refine(w.word, chain, start, base, sig, folds)
@@ -267,7 +320,13 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
         log = bool(np.all(values > 0))
         to, back = (np.log, np.exp) if log else (float, float)
         i = int(np.argmin(np.abs(values - params[key])))
-        lo, hi = to(values[max(i - 1, 0)]), to(values[min(i + 1, len(values) - 1)])
+        first, last = 0, len(values) - 1
+        if w.unresolved is not None and w.unresolved[0] == key:
+            # never onto the unresolved end (it was passed over, or is refused anyway)
+            first, last = (1, last) if w.unresolved[1] == "low" else (0, last - 1)
+        lo, hi = to(values[max(i - 1, first)]), to(values[min(i + 1, last)])
+        if not lo < hi:
+            continue
 
         def cost(u):
             p = {**params, key: float(back(u))}
@@ -359,7 +418,8 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         for w in words:
             if progress:
                 progress(w)
-            cands[w] = test_effect(w, sel.chain, before, cur, sig, folds, margins.gain[w])
+            cands[w] = test_effect(w, sel.chain, before, cur, sig, folds, margins.gain[w],
+                                   gross=misfit(before) > GROSS * noise)
         passing = _passing(cands, sel, margins, rnd)
         accepted, refused = _first_acceptable(passing, sel.chain, cur, sig, folds, noise)
         for c, outcome, why in refused:
@@ -379,6 +439,11 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
         rnd += 1
     return sel
+
+
+def misfit(cv: CVResult) -> float:
+    """RMS (L/min) of the pooled held-out residual of a cross-validated design."""
+    return float(np.sqrt(cv.test.sum() / cv.n.sum()))
 
 
 def _need(c: Candidate, sel: Selection, margins: Margins) -> float:
@@ -463,7 +528,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         return NOT_PHYSICAL, why
     d0 = build(cur, sig, chain)
     before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
-    why = w.support(sig, params, before, noise)
+    why = w.support(sig, params, before, noise, chain)
     if why:
         return UNSUPPORTED, why
     c.params = params

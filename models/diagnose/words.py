@@ -155,8 +155,10 @@ class Word:
         """The parameters in the units of :attr:`units` (``coef``: the column's fitted coefficient)."""
         return {k: float(v) for k, v in params.items()}
 
-    def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float) -> str | None:
-        """``None``, or why the recording lacks the rows that would show this law (range-end laws)."""
+    def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float,
+                chain: dict | None = None) -> str | None:
+        """``None``, or why the recording lacks the rows that would show this law (range-end laws);
+        ``chain``: the named words it joins (their time response delays where the law shows)."""
         return None
 
     def implausible(self, phys: dict) -> str | None:
@@ -201,10 +203,10 @@ class AsymmetricHysteresis(Word):
         # zero-threshold operator too): the exact law has both, started on a coarse grid
         h = major_loop_half_width(base.shape.r, base.lift_w)
         first = float(np.clip(coef / h if h > 1e-3 else 0.1, 0.01, 20.0))
-        return [{"widen": a, "lift": c * h} for a in sorted({first, 0.1, 0.5, 2.0}) for c in (1e-3, 0.3, 1.0, 3.0)]
+        return [{"widen": a, "lift": c * h} for a in sorted({first, 0.1, 0.5, 2.0}) for c in (1e-3, 0.3, 1.0, 3.0, 10.0)]
 
     def bounds(self, sig, base):
-        return {"widen": (1e-3, 40.0), "lift": (1e-4, 2.0)}
+        return {"widen": (1e-3, 40.0), "lift": (1e-4, 4.0)}
 
     def is_exact(self, params):
         return "widen" in params
@@ -218,7 +220,9 @@ class AsymmetricHysteresis(Word):
     def physical(self, params, coef, sig, base):
         from .design import major_loop_half_width
 
-        h = major_loop_half_width(base.shape.r, base.lift_w)
+        # relative to the half-width of the PI's own major loop (its fitted weights: the loop the
+        # valve shows), as DESIGN.md's effect table measures the asymmetry
+        h = major_loop_half_width(base.shape.r, base.shape.w)
         if self.is_exact(params):
             # descending thresholds r (1 + widen) + lift at the top: relative extra width over the
             # loop's half-width h
@@ -246,9 +250,11 @@ class CoilHeating(Word):
             return []
         # the first-order column saturates on a large rise and biases the screen's time constant,
         # and rise and time constant trade off along a narrow valley: a grid of the exact law
-        taus = self.grid(sig, base)["tau_s"]
-        rises = (5.0, 12.0, 30.0, 70.0)
-        return [{**params, "rise55_k": r, "tau_s": float(t)} for r in rises for t in taus]
+        # (and a warm or a cold start: the screen's choice is unreliable when its column saturates)
+        g = self.grid(sig, base)
+        rises = (5.0, 12.0, 30.0, 70.0, 160.0)
+        return [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
+                for r in rises for t in g["tau_s"] for s in g["start"]]
 
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
@@ -288,7 +294,7 @@ class CoilHeating(Word):
             p["rise55_k"] = float(coef)
         return p
 
-    def support(self, sig, params, before_lpm, noise_lpm):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
         if sig.coil_temp_c is None:
             return None
         r = params.get("copper_law_ratio", 1.0)
@@ -368,12 +374,12 @@ class DeadZone(Word):
     def grid(self, sig, base):
         # cracking duties just above the lowest duty and the low duty quantiles (each masks the rows
         # at or below one of them, so a held level right at the cracking duty is either shut or open,
-        # not both), and evenly over the lower 40 % of the duty span (a recording that rests at one
+        # not both), and evenly over the lower 60 % of the duty span (a recording that rests at one
         # low level, as a ventilator's expiration does, has all its low quantiles at that level)
         q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
-        span = np.linspace(q[0], q[0] + 0.4 * np.ptp(sig.duty_pct), 41)
+        span = np.linspace(q[0], q[0] + 0.6 * np.ptp(sig.duty_pct), 61)
         c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
-        return {"cracking_pct": c[c <= 50.0]}
+        return {"cracking_pct": c[c <= self.plausible["cracking_pct"][1]]}
 
     def applicable(self, sig, base):
         return None if len(self.grid(sig, base)["cracking_pct"]) else "the duty never goes low enough"
@@ -381,20 +387,25 @@ class DeadZone(Word):
     def flow_gain(self, sig, params):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
 
-    def support(self, sig, params, before_lpm, noise_lpm):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
         shut = sig.duty_pct <= params["cracking_pct"]
         if shut.sum() < MIN_END_ROWS:
             return f"only {int(shut.sum())} rows below the cracking duty"
-        # where the law says the valve is shut, the flow must really stop: measured flow at zero
-        # within the noise, while the model before it predicted flow there
-        q = np.median(np.abs(sig.flow_lpm[shut]))
-        pred = np.median(np.abs(before_lpm[shut]))
+        # the law acts where the valve is shut but the model before it predicted flow: there the
+        # measured flow must really stop (zero within the noise). Below where the model closes
+        # by itself the law changes nothing, so those rows say nothing either way. A lag or a
+        # delay of the chain carries the flow on past the closing: shut means shut at the sensor.
+        opened = self.flow_gain(sig, params)
+        for w, p in (chain or {}).items():
+            opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
         lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
+        acts = shut & (opened < 0.02) & (np.abs(before_lpm) > lim)
+        if acts.sum() < MIN_END_ROWS:
+            return "the model before it already predicts no flow below the cracking duty"
+        q = np.median(np.abs(sig.flow_lpm[acts]))
         if q > lim:
-            return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} %: median "
-                    f"{q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
-        if pred < q + noise_lpm:
-            return "the model before it already predicts no flow there"
+            return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} % where the model "
+                    f"before it predicts flow: median {q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
         return None
 
 
@@ -409,7 +420,7 @@ class Saturation(Word):
     def clip_lpm(self, params):
         return params["full_open_lpm"]
 
-    def support(self, sig, params, before_lpm, noise_lpm):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
         top = before_lpm > params["full_open_lpm"]
         if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
@@ -487,7 +498,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         {"delay_s": "s"}, {"delay_s": (0.0, 1.0)}, unresolved=("delay_s", "high"), probe={"delay_s": 0.01}),
     DeadZone(
         "dead_zone", "no flow while the duty is below the cracking duty",
-        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 50.0)}, static=True),
+        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 65.0)}, static=True),
     Saturation(
         "saturation", "flow clipped at the full-open flow",
         {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, static=True),
@@ -495,7 +506,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         "creep", "after each reversal the flow drifts on the way it went, to a fraction a of the last "
         "reversal-to-reversal step, first order with tau",
         {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
-        {"amplitude": (0.003, 0.5), "tau_s": (0.3, 1000.0)}, joint_with_pi=True, unresolved=("tau_s", "high"),
+        {"amplitude": (0.003, 1.0), "tau_s": (0.3, 1000.0)}, joint_with_pi=True, unresolved=("tau_s", "high"),
         whole_plot=True),
     SensorOffset(
         "sensor_offset", "constant zero offset of the flow sensor",
