@@ -172,8 +172,13 @@ def _plant_recording(effects: dict, protocol: str, duration_s: float, seed: int 
     from plant_sim.plant import Plant, load_plant
     from plant_sim.protocols import protocol as make
 
-    cols = Plant(load_plant(S.PLANT_TOML, effects), 100.0, seed=seed).simulate(make(protocol, 100.0, duration_s, seed))
-    return Recording("<gross>", {k: np.asarray(cols[k], float) for k in ("t_s", "duty_pct", "flow_lpm")})
+    if protocol == "breaths":  # a ventilator's inspiratory valve resting at 30 % between breaths
+        duty = S.excitation("breaths", seed, 30.0, rate_hz=100.0, duration_s=duration_s)
+    else:
+        duty = make(protocol, 100.0, duration_s, seed)
+    cols = Plant(load_plant(S.PLANT_TOML, effects), 100.0, seed=seed).simulate(duty)
+    keep = ("t_s", "duty_pct", "flow_lpm") + (("supply_bar",) if "supply_pressure" in effects else ())
+    return Recording("<gross>", {k: np.asarray(cols[k], float) for k in keep})
 
 
 def test_gross_coil_heating_is_modelled_by_its_exact_law():
@@ -194,6 +199,45 @@ def test_gross_dead_zone_is_named_at_its_cracking_duty():
     named = {f.effect: f for f in d.findings}
     assert list(named)[0] == "dead_zone"
     assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=0.5)
+
+
+def _named(effects: dict, protocol: str) -> dict:
+    d = diagnose_response(_plant_recording(effects, protocol, 300.0))
+    named = {f.effect: f for f in d.findings}
+    # exactly the injected words (a lag may be named with a delay as the alternative it cannot be told from)
+    assert {w for w, f in named.items() if f.alternative_to is None} == set(effects)
+    for f in d.findings:
+        assert f.holdout_rmse_after < f.holdout_rmse_before
+    return named
+
+
+@pytest.mark.slow
+def test_gross_dead_zone_on_breaths():
+    # a 45 % cracking duty on breaths that rest at 30 %: every breath opens late and shuts early
+    named = _named({"dead_zone": 45.0}, "breaths")
+    assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=1.0)
+
+
+@pytest.mark.slow
+def test_gross_heating_with_supply_wander():
+    # a coil 30 K warm at 55 % duty while the supply wanders by 0.3 bar (recorded): both laws, no creep
+    named = _named({"supply_pressure": 0.3, "coil_heating": 30.0}, "paper_identification")
+    assert named["coil_heating"].params["rise55_k"] == pytest.approx(30.0, rel=0.25)
+    assert named["supply_pressure"].params["exponent"] == pytest.approx(1.0, rel=0.3)  # choked flow
+
+
+@pytest.mark.slow
+def test_gross_saturation_with_creep():
+    named = _named({"saturation": 140.0, "creep": 0.1}, "paper_identification")
+    assert named["saturation"].params["full_open_lpm"] == pytest.approx(140.0, rel=0.02)
+    assert 0.05 < named["creep"].params["amplitude"] < 0.2
+
+
+@pytest.mark.slow
+def test_gross_asymmetry_ten_times_the_loop():
+    # descending thresholds lifted by 10 x the major loop's half-width at the top of the range
+    named = _named({"asymmetric_hysteresis": 10.0}, "paper_identification")
+    assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(10.0, rel=0.3)
 
 
 def test_closed_loop_run_is_diagnosed_against_its_feedforward_model():

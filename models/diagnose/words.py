@@ -398,11 +398,12 @@ class DeadZone(Word):
         opened = self.flow_gain(sig, params)
         for w, p in (chain or {}).items():
             opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
-        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
-        acts = shut & (opened < 0.02) & (np.abs(before_lpm) > lim)
+        acts = shut & (opened < 0.02) & (np.abs(before_lpm) > 2.0 * noise_lpm)
         if acts.sum() < MIN_END_ROWS:
             return "the model before it already predicts no flow below the cracking duty"
+        # zero within the noise, and nearer zero than the flow the model predicted there
         q = np.median(np.abs(sig.flow_lpm[acts]))
+        lim = min(3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm)), 0.5 * float(np.median(np.abs(before_lpm[acts]))))
         if q > lim:
             return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} % where the model "
                     f"before it predicts flow: median {q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
