@@ -184,6 +184,8 @@ class Word:
 
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
+#: Duty band (%) above a cracking duty where the flow must have jumped.
+JUMP_BAND_PCT = 2.0
 
 
 def _span(sig: Signals) -> float:
@@ -391,23 +393,35 @@ class DeadZone(Word):
         shut = sig.duty_pct <= params["cracking_pct"]
         if shut.sum() < MIN_END_ROWS:
             return f"only {int(shut.sum())} rows below the cracking duty"
-        # the law acts where the valve is shut but the model before it predicted flow: there the
-        # measured flow must really stop (zero within the noise). Below where the model closes
-        # by itself the law changes nothing, so those rows say nothing either way. A lag or a
-        # delay of the chain carries the flow on past the closing: shut means shut at the sensor.
+        # where the law says the valve is shut the measured flow must really stop (zero within the
+        # noise) while the model before it predicted flow. A lag or a delay of the chain carries the
+        # flow on past the closing: shut means shut at the sensor.
         opened = self.flow_gain(sig, params)
         for w, p in (chain or {}).items():
             opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
-        acts = shut & (opened < 0.02) & (np.abs(before_lpm) > 2.0 * noise_lpm)
-        if acts.sum() < MIN_END_ROWS:
-            return "the model before it already predicts no flow below the cracking duty"
-        # zero within the noise, and nearer zero than the flow the model predicted there
-        q = np.median(np.abs(sig.flow_lpm[acts]))
-        lim = min(3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm)), 0.5 * float(np.median(np.abs(before_lpm[acts]))))
+        shut &= opened < 0.02
+        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
+        # either over the shut rows as a whole (a dead zone just above where the model closes by
+        # itself), or where the model predicted clear flow (a deep dead zone, most of whose shut
+        # rows lie below the model's own closing and say nothing either way) if the valve opens
+        # with a jump there: a cracking duty holds the valve shut until the flow it would pass is
+        # well above zero, where a valve closing by itself (a fitted PI smooths its kink) comes to
+        # zero flow continuously
+        band = (opened >= 0.98) & (sig.duty_pct > params["cracking_pct"]) & \
+            (sig.duty_pct <= params["cracking_pct"] + JUMP_BAND_PCT)
+        jumps = band.sum() >= MIN_END_ROWS and \
+            float(np.median(sig.flow_lpm[band])) - float(np.median(sig.flow_lpm[shut])) > lim
+        for rows in (shut, shut & (np.abs(before_lpm) > lim) & jumps):
+            if rows.sum() < MIN_END_ROWS:
+                continue
+            q = float(np.median(np.abs(sig.flow_lpm[rows])))
+            if q <= lim and float(np.median(np.abs(before_lpm[rows]))) >= q + noise_lpm:
+                return None
+        q = float(np.median(np.abs(sig.flow_lpm[shut]))) if shut.any() else 0.0
         if q > lim:
-            return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} % where the model "
-                    f"before it predicts flow: median {q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
-        return None
+            return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} %: median "
+                    f"{q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
+        return "the model before it already predicts no flow below the cracking duty"
 
 
 @dataclass(frozen=True)
