@@ -28,7 +28,7 @@ def precompile(config_path: str = "config/run.toml") -> float:
 
     from .config import controller_params, load_run_config, supervisor
     from .laws import control
-    from .sweep import simulate
+    from .sweep import margins, simulate
 
     t0 = time.perf_counter()
     cfg = load_run_config(config_path)
@@ -37,6 +37,7 @@ def precompile(config_path: str = "config/run.toml") -> float:
     plant = Plant(valve, cfg.loop.rate_hz)
     plant.running(plant.init(0.0)).step(10.0)
     supervisor(cfg, cfg[""]["controller"], model).warm_up(1.0 / cfg.loop.rate_hz, cfg.loop.safe_duty_pct)
+    margins.operating_point(valve, 60.0, cfg.loop.rate_hz)  # the sweep's margins run the valve on a ramp
     for word in control.MODES:
         p = controller_params(cfg, word, model)
         simulate.closed_loop(control.repeat(p, 2), BatchPlant([valve, valve], cfg.loop.rate_hz), np.full(3, 10.0),

@@ -104,11 +104,11 @@ def closed_loop(params: control.ControllerParams, plant, ref_lpm: np.ndarray, ra
     meas = np.ascontiguousarray(out.flow_lpm)
     s = control.init(params, meas, duty0_pct)
     kernel_params = params.kernel
-    ref = np.ascontiguousarray(ref_lpm, dtype=np.float64)
+    ref = np.array(ref_lpm, dtype=np.float64)  # a writable copy: one compiled signature whatever the caller holds
     n = len(ref)
     flow, duty, true_flow = np.empty((B, n)), np.empty((B, n)), np.empty((B, n))
     true_flow[:, 0] = out.true_flow_lpm
-    preview = np.ascontiguousarray(np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,)))
+    preview = np.array(np.broadcast_to(np.asarray(preview_steps, dtype=np.int64), (B,)))  # writable, as ref
     ahead = np.concatenate([ref, np.full(int(preview.max(initial=0)), ref[-1])])
     _run(kernel_params.mode, kernel_params.lead, kernel_params.P, *kernel_params.bank, s.x, s.forward, s.hist,
          int(s.pos[0]), plant._P, plant._MP, plant._EV, plant._keys, ps.model, ps.x, ps.buf, ps.k, meas, ref, ahead,
