@@ -19,7 +19,10 @@ $(STAMP): pyproject.toml
 # Ahead of time: the kernels of run and sweep compiled into numba's cache after install and after their
 # sources change, so the first run, sweep or test after either compiles nothing.
 KERNELS := $(wildcard controller/laws/*.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py)
+# Numba checks a cached kernel against its own file only, not the files of the kernels it inlines:
+# the caches are cleared first, so an edit anywhere in KERNELS is never run as stale machine code.
 $(PRECOMPILED): $(STAMP) $(KERNELS)
+	find controller models plant_sim -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete
 	$(PY) -m controller.precompile
 	touch $(PRECOMPILED)
 
