@@ -9,15 +9,20 @@ loop never tries to catch up with a burst of steps. The garbage collector is
 frozen and disabled while the loop runs.
 
 Trigger (``[loop] trigger``): ``period`` steps at every deadline, as above;
-``measurement`` steps as soon as the transport signals a measurement
-(``wait_measurement``), and when none comes, :data:`WATCHDOG_PERIODS`
-periods after the previous step (the watchdog's step). Then lateness is
-wake - arrival (wake - watchdog deadline on a watchdog step) and an overrun
-is a measurement superseded by a newer one before a step took it.
+``measurement`` steps as each measurement arrives, on the transport's own
+thread: the transport calls the loop's hook (``on_measurement``) right after
+it keeps the measurement, and the hook runs the step there, so no thread
+hand-off (an event's wake-up and the GIL's, 50-150 µs) lies between the
+measurement and its command. The loop's thread only sleeps, as the watchdog:
+when no measurement came for :data:`WATCHDOG_PERIODS` periods it steps itself
+(stale check, safe state, status); a lock keeps the two from stepping at
+once. Then lateness is step start - arrival (the lock's wait; start -
+watchdog deadline on a watchdog step) and an overrun is a measurement that
+got no step of its own (a step that started after it came took it along).
 
 Per step (one period):
 
-1. wake at the deadline (or the measurement); lateness = wake - deadline;
+1. wake at the deadline (or the measurement); lateness = wake - deadline (or arrival);
 2. take the newest measurement and reference from the transport (already
    received, never waited for); reject and count non-finite or out-of-range
    values (``bad_measurement`` / ``bad_reference``); clamp the reference to
@@ -32,7 +37,9 @@ Per step (one period):
    to ``ff+pid``, then to the fault state), or the safe duty;
 5. command, tracking error, alarms (:mod:`controller.alarms`), status at
    ``status_hz``, record row;
-6. compute time = end of the step - wake.
+6. compute time (``compute_us``) = end of the step - wake: all of 2.-5., the
+   payloads parsed and the command sent included (with the embedded valve,
+   its simulated step too).
 
 Allocation: the loop's per-step records are preallocated arrays; the law of
 the word in force advances in place in one compiled call
@@ -49,6 +56,7 @@ import gc
 import math
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -57,7 +65,7 @@ import numpy as np
 from .alarms import AlarmSettings, Alarms
 from .laws import control
 from .supervisor import Supervisor, SupervisorSettings
-from .watchdog import FAULT, RUNNING, SAFE, STATES, Faults, Watchdog, in_range
+from .watchdog import FAULT, RUNNING, SAFE, STATES, Faults, in_range
 
 #: Columns of the run recording (DESIGN.md), then what the rate limit and the clamp changed
 #: (``duty = ff + fb + limit``) and the age of the newest measurement.
@@ -96,8 +104,8 @@ class LoopSettings:
         ``period``: a step at every deadline (the loop samples the sensor);
         ``measurement``: a step as soon as a measurement arrives, and at
         :data:`WATCHDOG_PERIODS` periods after the previous step when none came
-        (the sensor samples on its own clock; the transport must signal
-        arrivals, ``wait_measurement``).
+        (the sensor samples on its own clock; the transport must call the
+        loop at each arrival: ``on_measurement(hook)``).
     alarms : AlarmSettings
         Thresholds and hold times of the online alarms.
     fallback : SupervisorSettings
@@ -165,6 +173,14 @@ class RealClock:
             now = pc()
         return now
 
+    @staticmethod
+    def sleep_until(deadline: float) -> float:
+        """Sleep (the GIL released) to ``deadline`` without the spin: a wait other threads may end early."""
+        rest = deadline - time.perf_counter()
+        if rest > 0:
+            time.sleep(rest)
+        return time.perf_counter()
+
 
 class SimClock:
     """Simulated clock: waiting jumps to the deadline, so a loop runs as fast as it computes."""
@@ -178,6 +194,8 @@ class SimClock:
     def wait_until(self, deadline: float) -> float:
         self.t = max(self.t, deadline)
         return self.t
+
+    sleep_until = wait_until
 
 
 class ProfileReference:
@@ -206,26 +224,30 @@ class ProfileReference:
 
 
 class _Columns:
-    """Preallocated per-step arrays (grown by doubling when a run has no set length)."""
+    """Preallocated per-step arrays (grown by doubling when a run has no set length), one attribute each.
+
+    Filled at creation, so that no step meets a page of them for the first time (a page fault
+    of a few µs every 512 steps per column).
+    """
 
     FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "limit_duty_pct",
               "meas_age_ms", "lateness_s", "compute_s")
+    __slots__ = FIELDS + ("state", "word", "n", "capacity")
 
     def __init__(self, capacity: int):
-        self.n = 0
-        self.a = {f: np.empty(capacity) for f in self.FIELDS}
-        self.state = np.empty(capacity, dtype=np.int8)
-        self.word = np.empty(capacity, dtype=np.int8)  # index into control.MODES
+        self.n, self.capacity = 0, capacity
+        for f in self.FIELDS:
+            setattr(self, f, np.full(capacity, 0.0))
+        self.state = np.full(capacity, 0, dtype=np.int8)
+        self.word = np.full(capacity, 0, dtype=np.int8)  # index into control.MODES
 
     def grow(self) -> None:
-        cap = 2 * len(self.state)
-        for f, v in self.a.items():
-            self.a[f] = np.resize(v, cap)
-        self.state = np.resize(self.state, cap)
-        self.word = np.resize(self.word, cap)
+        self.capacity *= 2
+        for f in self.FIELDS + ("state", "word"):
+            setattr(self, f, np.resize(getattr(self, f), self.capacity))
 
     def trimmed(self) -> dict[str, np.ndarray]:
-        out = {f: v[: self.n].copy() for f, v in self.a.items()}
+        out = {f: getattr(self, f)[: self.n].copy() for f in self.FIELDS}
         out["state"] = self.state[: self.n].copy()
         out["controller"] = np.asarray(control.MODES)[self.word[: self.n]]
         return out
@@ -261,13 +283,17 @@ class Loop:
     transport : object
         ``poll_measurement(accept) -> (flow | None, n_bad)``, ``command(duty_pct, t_s)``,
         ``publish_error(t_s, error_lpm)``, ``publish_status(t_s, status)``; optionally
-        ``poll_mode() -> (word | None, n_bad)`` (runtime switching) and
-        ``supply_bar() -> float | None`` (the supply pressure, for ``supply_low``).
+        ``poll_mode() -> (word | None, n_bad)`` (runtime switching),
+        ``supply_bar() -> float | None`` (the supply pressure, for ``supply_low``) and
+        ``on_measurement(hook | None)`` (trigger ``measurement``: ``hook(arrival_s)`` called on the
+        transport's thread as each measurement arrives, ``arrival_s`` on the clock's time).
     reference : object
         ``poll(t_s, accept) -> (ref | None, n_bad)`` and ``can_go_stale``; with
         ``preview_s > 0`` also ``ahead(t_s, accept)``, the feedforward's reference.
     settings : LoopSettings
     clock : RealClock or SimClock
+        ``now()``, ``wait_until(deadline)`` (trigger ``period``) and ``sleep_until(deadline)`` (the
+        watchdog's wait with trigger ``measurement``).
     writer : RecordingWriter, optional
         Receives one row per step (:data:`RECORD_COLUMNS`), flushed as written.
     observer : callable, optional
@@ -294,8 +320,8 @@ class Loop:
         if cfg.trigger not in TRIGGERS:
             raise ValueError(f"trigger {cfg.trigger!r} (one of {', '.join(TRIGGERS)})")
         on_measurement = cfg.trigger == "measurement"
-        wait_measurement = getattr(self.transport, "wait_measurement", None)
-        if on_measurement and wait_measurement is None:
+        serve = getattr(self.transport, "on_measurement", None)
+        if on_measurement and serve is None:
             raise ValueError("trigger 'measurement' needs a transport that signals measurements (a valve over Zenoh)")
         n_steps = None if duration_s is None else max(1, int(round(duration_s * cfg.rate_hz)))
         cols = _Columns(n_steps if n_steps else 1 << 16)
@@ -305,20 +331,27 @@ class Loop:
         status_every = max(1, int(round(cfg.rate_hz / cfg.status_hz)))
         sup, transport, reference, clock, writer = self.supervisor, self.transport, self.reference, self.clock, self.writer
         observer = self.observer
+        # the step's callees bound once (a lookup less per call)
+        poll_measurement, command = transport.poll_measurement, transport.command
+        publish_error = transport.publish_error
         poll_mode = getattr(transport, "poll_mode", None)
         supply_bar = getattr(transport, "supply_bar", None)
+        poll_reference, ahead = reference.poll, reference.ahead if getattr(reference, "preview_s", 0.0) > 0 else None
+        can_go_stale = reference.can_go_stale
         lim = sup.params.limits
         alarms = Alarms(cfg.alarms, float(lim.duty_min_pct[0]), float(lim.duty_max_pct[0]))
+        alarm_step = alarms.step
+        sup_step = sup.step
         word_index = {w: i for i, w in enumerate(control.MODES)}
-        iae = 0.0
         pc = time.perf_counter
-        safe = cfg.safe_duty_pct
-        preview = getattr(reference, "preview_s", 0.0) > 0
-
-        stale_s = cfg.stale_ms * 1e-3
+        safe, flow_max = cfg.safe_duty_pct, cfg.flow_max_lpm
+        stale_s, ref_stale_s = cfg.stale_ms * 1e-3, cfg.ref_stale_ms * 1e-3
         real_time = isinstance(clock, RealClock)  # a simulated clock does not stand still for the host
-        meas_dog = Watchdog(stale_s, 0.0)
-        ref_dog = Watchdog(cfg.ref_stale_ms * 1e-3, 0.0)
+
+        # The loop's state, advanced by step() (on the loop's thread, or on the transport's with
+        # trigger "measurement"; never by two at once).
+        t0 = 0.0
+        meas_t = ref_t = 0.0  # time of the newest fresh measurement and reference (the watchdogs)
         state, stale, ref_stale = SAFE, False, False
         ctrl = None
         meas = math.nan  # newest accepted measurement
@@ -326,6 +359,118 @@ class Loop:
         duty = safe
         ff = fb = 0.0
         steps = overruns = 0
+        iae = 0.0
+        late_max = compute_max = 0.0  # since the last status
+        last_wake = -math.inf
+
+        def step(now: float, due: float) -> None:
+            """One step (1.-6. above): ``now`` its wake, ``due`` when it was due (deadline or arrival)."""
+            nonlocal meas_t, ref_t, state, stale, ref_stale, ctrl, meas, ref_in, duty, ff, fb, steps, iae, late_max
+            nonlocal compute_max, last_wake
+            c0 = pc()
+            last_wake = now
+            t = now - t0
+
+            # 2. inputs
+            v, bad = poll_measurement(accept_meas)
+            if bad:
+                faults.add_rejects(bad, t, "bad_measurement")
+            fresh = v is not None
+            if fresh:
+                meas, meas_t = v, t
+            r, bad = poll_reference(t, accept_ref)
+            if bad:
+                faults.add("bad_reference", t, bad)
+            if r is not None:
+                ref_in, ref_stale, ref_t = r, False, t
+            elif can_go_stale and t - ref_t > ref_stale_s:
+                if not ref_stale:
+                    faults.add("stale_reference", t)
+                    ref_stale = True
+                ref_in = 0.0
+            ref = min(max(ref_in, 0.0), flow_max)
+            r_ff = ahead(t, accept_ref) if ahead is not None else None
+            ref_ff = ref if r_ff is None else min(max(r_ff, 0.0), flow_max)
+
+            if poll_mode is not None:
+                w, bad = poll_mode()
+                if w is not None and not sup.request(w):
+                    bad += 1
+                if bad:
+                    faults.add("bad_mode", t, bad)
+
+            # 3. watchdog
+            if t - meas_t > stale_s:
+                if not stale:
+                    # Data that stopped is a stale valve; data that never came, a missing one.
+                    faults.add("stale" if meas == meas else "no_measurement", t)
+                    stale = True
+                state = SAFE
+            elif fresh and state != RUNNING:
+                ctrl = sup.init(meas, duty) if ctrl is None else sup.resume(ctrl, meas, duty)
+                state, stale = RUNNING, False
+
+            # 4. law (switching, fallback) or safe duty
+            if state == RUNNING:
+                ctrl, cmd = sup_step(ctrl, ref, meas, period, ref_ff, t, faults)
+                if cmd is None:  # no law could compute a duty: the fault state commands the safe duty
+                    state, ctrl = FAULT, None
+                else:
+                    duty, ff, fb, _ = cmd
+            if state != RUNNING:
+                duty, ff, fb = safe, safe, 0.0
+
+            # 5. outputs
+            command(duty, t)
+            err = ref - meas
+            if state == RUNNING:
+                publish_error(t, err)
+                iae += abs(err) * period / 60.0
+            alarm_step(t, state == RUNNING, duty, err, sup.mismatch_lpm,
+                       supply_bar() if supply_bar is not None else None)
+            if steps % status_every == 0:
+                status = {
+                    "state": STATES[state],
+                    "controller": sup.word,
+                    "ref_lpm": ref,
+                    "flow_lpm": meas if meas == meas else None,
+                    "duty_pct": duty,
+                    "error_lpm": err if err == err else None,
+                    "iae": iae,
+                    "steps": steps,
+                    "overruns": overruns,
+                    "lateness_us_max": late_max * 1e6,
+                    "compute_us_max": compute_max * 1e6,
+                    "faults": faults.counts(),
+                    "alarms": alarms.active(),
+                    "alarm_counts": alarms.counts(),
+                }
+                late_max = compute_max = 0.0
+                transport.publish_status(t, status)
+                if observer is not None:
+                    observer(t, status)
+            i = cols.n
+            if i == cols.capacity:
+                cols.grow()
+            age_ms = (t - meas_t) * 1e3
+            late = now - due
+            limit = duty - ff - fb
+            cols.t_s[i], cols.ref_lpm[i], cols.flow_lpm[i], cols.duty_pct[i] = t, ref, meas, duty
+            cols.ff_duty_pct[i], cols.fb_duty_pct[i], cols.limit_duty_pct[i] = ff, fb, limit
+            cols.meas_age_ms[i], cols.lateness_s[i] = age_ms, late
+            cols.state[i], cols.word[i] = state, word_index[sup.word]
+            cols.n = i + 1
+            if writer is not None:
+                writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word, limit,
+                              age_ms))
+            cols.compute_s[i] = end = pc() - c0
+            if end > compute_max:
+                compute_max = end
+            if late > late_max:
+                late_max = late
+            if real_time and end + late > stale_s:  # stood still past its own watchdog
+                faults.add("stalled", t)
+            steps += 1
 
         # Warm-up: each law computes one throw-away step before the first deadline, so loading its
         # compiled kernels (numba's cache: tens to hundreds of ms on a busy host) never stalls a live
@@ -339,140 +484,64 @@ class Loop:
         rt = contextlib.ExitStack()
         rt.enter_context(realtime(cfg.rt_priority if isinstance(clock, RealClock) else 0))
         t0 = clock.now()
-        deadline = t0
         try:
-            while True:
-                if on_measurement:  # lateness: from the measurement's arrival, or from the watchdog's deadline
-                    arrived, superseded = wait_measurement(deadline)
-                    now = clock.now()
-                    due = deadline if arrived is None else arrived
-                    overruns += superseded
-                else:
-                    now = clock.wait_until(deadline)
-                    due = deadline
-                c0 = pc()
-                t = now - t0
+            if on_measurement:
+                # Each measurement's step runs at once on the transport's thread (arrived); this thread
+                # is the watchdog: a step when none came for WATCHDOG_PERIODS periods, and the run's end.
+                watch = WATCHDOG_PERIODS * period
+                lock = threading.Lock()  # one step at a time
+                serving, failed = True, []
+                last_wake = t0 - watch
 
-                # 2. inputs
-                v, bad = transport.poll_measurement(accept_meas)
-                if bad:
-                    faults.add_rejects(bad, t, "bad_measurement")
-                fresh = v is not None
-                if fresh:
-                    meas = v
-                    meas_dog.fresh(t)
-                r, bad = reference.poll(t, accept_ref)
-                if bad:
-                    faults.add("bad_reference", t, bad)
-                if r is not None:
-                    ref_in, ref_stale = r, False
-                    ref_dog.fresh(t)
-                elif reference.can_go_stale and ref_dog.stale(t):
-                    if not ref_stale:
-                        faults.add("stale_reference", t)
-                        ref_stale = True
-                    ref_in = 0.0
-                ref = min(max(ref_in, 0.0), cfg.flow_max_lpm)
-                r_ff = reference.ahead(t, accept_ref) if preview else None
-                ref_ff = ref if r_ff is None else min(max(r_ff, 0.0), cfg.flow_max_lpm)
+                def arrived(arrival_s: float) -> None:
+                    nonlocal overruns, serving
+                    with lock:
+                        if not serving:
+                            return
+                        if last_wake >= arrival_s:  # taken along by a step that came first
+                            overruns += 1
+                            return
+                        try:
+                            step(clock.now(), arrival_s)
+                        except BaseException as exc:  # raised again on the loop's thread
+                            failed.append(exc)
+                            serving = False
 
-                if poll_mode is not None:
-                    w, bad = poll_mode()
-                    if w is not None and not sup.request(w):
-                        bad += 1
-                    if bad:
-                        faults.add("bad_mode", t, bad)
-
-                # 3. watchdog
-                if meas_dog.stale(t):
-                    if not stale:
-                        # Data that stopped is a stale valve; data that never came, a missing one.
-                        faults.add("stale" if meas == meas else "no_measurement", t)
-                        stale = True
-                    state = SAFE
-                elif fresh and state != RUNNING:
-                    ctrl = sup.init(meas, duty) if ctrl is None else sup.resume(ctrl, meas, duty)
-                    state, stale = RUNNING, False
-
-                # 4. law (switching, fallback) or safe duty
-                if state == RUNNING:
-                    ctrl, cmd = sup.step(ctrl, ref, meas, period, ref_ff, t, faults)
-                    if cmd is None:  # no law could compute a duty: the fault state commands the safe duty
-                        state, ctrl = FAULT, None
-                    else:
-                        duty, ff, fb, _ = cmd
-                if state != RUNNING:
-                    duty, ff, fb = safe, safe, 0.0
-
-                # 5. outputs
-                transport.command(duty, t)
-                err = ref - meas
-                if state == RUNNING:
-                    transport.publish_error(t, err)
-                    iae += abs(err) * period / 60.0
-                alarms.step(t, state == RUNNING, duty, err, sup.mismatch_lpm,
-                            supply_bar() if supply_bar is not None else None)
-                if steps % status_every == 0:
-                    i0 = max(0, cols.n - status_every)
-                    status = {
-                        "state": STATES[state],
-                        "controller": sup.word,
-                        "ref_lpm": ref,
-                        "flow_lpm": meas if meas == meas else None,
-                        "duty_pct": duty,
-                        "error_lpm": err if err == err else None,
-                        "iae": iae,
-                        "steps": steps,
-                        "overruns": overruns,
-                        "lateness_us_max": float(cols.a["lateness_s"][i0:cols.n].max(initial=0.0)) * 1e6,
-                        "compute_us_max": float(cols.a["compute_s"][i0:cols.n].max(initial=0.0)) * 1e6,
-                        "faults": faults.counts(),
-                        "alarms": alarms.active(),
-                        "alarm_counts": alarms.counts(),
-                    }
-                    transport.publish_status(t, status)
-                    if observer is not None:
-                        observer(t, status)
-                i = cols.n
-                if i == len(cols.state):
-                    cols.grow()
-                a = cols.a
-                age_ms = meas_dog.age(t) * 1e3
-                a["t_s"][i], a["ref_lpm"][i], a["flow_lpm"][i] = t, ref, meas
-                limit = duty - ff - fb
-                a["duty_pct"][i], a["ff_duty_pct"][i], a["fb_duty_pct"][i], a["limit_duty_pct"][i] = duty, ff, fb, limit
-                a["meas_age_ms"][i], a["lateness_s"][i] = age_ms, now - due
-                cols.state[i] = state
-                cols.word[i] = word_index[sup.word]
-                cols.n = i + 1
-                if writer is not None:
-                    writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word,
-                                  limit, age_ms))
-                a["compute_s"][i] = end = pc() - c0
-                if real_time and end + (now - due) > stale_s:  # stood still past its own watchdog
-                    faults.add("stalled", t)
-                steps += 1
-
-                if stop is not None and stop():
-                    break
-                if on_measurement:  # steps come with the measurements; the run ends on its clock
-                    if duration_s is not None and clock.now() - t0 >= duration_s - 0.5 * period:
+                serve(arrived)
+                try:
+                    while True:
+                        clock.sleep_until(last_wake + watch)  # sleeps, never spins: the arrivals need the GIL
+                        with lock:
+                            if failed:
+                                raise failed[0]
+                            now = clock.now()
+                            if now >= last_wake + watch:
+                                step(now, last_wake + watch)
+                            if (stop is not None and stop()) or (
+                                    duration_s is not None and now - t0 >= duration_s - 0.5 * period):
+                                serving = False
+                                break
+                finally:
+                    serve(None)
+            else:
+                deadline = t0
+                while True:
+                    step(clock.wait_until(deadline), deadline)
+                    if stop is not None and stop():
                         break
-                    deadline = now + WATCHDOG_PERIODS * period
-                    continue
-                if n_steps is not None and steps >= n_steps:
-                    break
-                deadline += period
-                behind = clock.now() - deadline
-                if behind > 0:  # skip the deadlines already missed
-                    missed = int(behind / period) + 1
-                    if n_steps is not None:  # a run of n deadlines counts none past its end
-                        missed = min(missed, n_steps - steps)
-                        n_steps -= missed
-                    deadline += missed * period
-                    overruns += missed
                     if n_steps is not None and steps >= n_steps:
                         break
+                    deadline += period
+                    behind = clock.now() - deadline
+                    if behind > 0:  # skip the deadlines already missed
+                        missed = int(behind / period) + 1
+                        if n_steps is not None:  # a run of n deadlines counts none past its end
+                            missed = min(missed, n_steps - steps)
+                            n_steps -= missed
+                        deadline += missed * period
+                        overruns += missed
+                        if n_steps is not None and steps >= n_steps:
+                            break
         finally:
             rt.close()
             if gc_was_enabled:

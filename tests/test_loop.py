@@ -1,6 +1,7 @@
 """The fixed-rate loop against the in-process simulated valve, on a simulated clock."""
 from __future__ import annotations
 
+import collections
 import json
 import math
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from controller.config import controller_params, load_run_config
-from controller.loop import RECORD_COLUMNS, Loop, LoopSettings, ProfileReference, SimClock
+from controller.loop import RECORD_COLUMNS, Loop, LoopSettings, ProfileReference, RealClock, SimClock
 from controller.run_summary import steady_mask, summary, tracking
 from controller.transport.sim import SimTransport
 from controller.watchdog import RUNNING, SAFE
@@ -232,39 +233,39 @@ def test_batch_closed_loop_matches_the_live_loop(cfg, model):
         np.testing.assert_allclose(res.columns["flow_lpm"][:m], sim.flow_lpm[:m, j], atol=1e-6)
 
 
-class OwnClockSensor:
-    """A sensor on its own clock for ``trigger = "measurement"``: measurements arrive at ``arrivals_s``
-    (simulated clock), each the flow of a first-order valve driven by the last command."""
+class OwnClockSensor(SimClock):
+    """A sensor on its own clock for ``trigger = "measurement"``, and the simulated clock: measurements
+    arrive at ``arrivals_s``, each the flow of a first-order valve driven by the last command. The loop's
+    hook is called at each arrival while the loop's thread sleeps through it (as the transport's thread
+    would call it), with the clock at the arrival."""
 
-    def __init__(self, clock, arrivals_s):
-        self.clock, self.arrivals = clock, np.asarray(arrivals_s)
-        self.signalled = self.polled = 0  # arrivals signalled by wait_measurement, taken by a poll
+    def __init__(self, arrivals_s):
+        super().__init__()
+        self.arrivals = np.asarray(arrivals_s)
+        self.delivered = self.polled = 0  # arrivals handed to the hook, taken by a poll
+        self.hook = None
         self.flow = 0.0
         self.commands = []
 
-    def _arrived(self) -> int:
-        return int(np.searchsorted(self.arrivals, self.clock.now() + 1e-12, side="right"))
+    def on_measurement(self, hook):
+        self.hook = hook
 
-    def wait_measurement(self, deadline_s):
-        if self._arrived() == self.signalled:  # nothing new: sleep until the next arrival or the deadline
-            n = self._arrived()
-            if n == len(self.arrivals) or self.arrivals[n] > deadline_s:
-                self.clock.t = max(self.clock.t, deadline_s)
-                return None, 0
-            self.clock.t = float(self.arrivals[n])
-        n = self._arrived()
-        new, self.signalled = n - self.signalled, n
-        return float(self.arrivals[n - 1]), new - 1
+    def sleep_until(self, deadline_s):
+        while self.delivered < len(self.arrivals) and self.arrivals[self.delivered] <= deadline_s:
+            self.t = max(self.t, float(self.arrivals[self.delivered]))
+            self.delivered += 1
+            if self.hook is not None:
+                self.hook(self.t)
+        return self.wait_until(deadline_s)
 
     def poll_measurement(self, accept):
-        n = self._arrived()
-        if n == self.polled:
+        if self.delivered == self.polled:
             return None, 0
-        self.polled = n
+        self.polled = self.delivered
         return self.flow, 0
 
     def command(self, duty_pct, t_s):
-        self.commands.append((self.clock.now(), duty_pct))
+        self.commands.append((self.now(), duty_pct))
         self.flow += 0.3 * (duty_pct - self.flow)
 
     def publish_error(self, t_s, error_lpm):
@@ -284,11 +285,10 @@ def test_measurement_trigger_steps_at_each_arrival_and_the_period_stays_the_watc
     period = 1.0 / RATE
     gaps = np.random.default_rng(3).uniform(0.6, 1.4, 400) * period
     arrivals = 0.0102 + np.cumsum(gaps)  # the first 10 ms without measurements
-    clock = SimClock()
-    sensor = OwnClockSensor(clock, arrivals)
+    sensor = OwnClockSensor(arrivals)
     settings = dataclasses.replace(SETTINGS, trigger="measurement")
     res = Loop(controller_params(cfg, "ff+pid", model), sensor, ProfileReference(lambda t: 30.0), settings,
-               clock=clock).run(arrivals[-1] + 0.2)
+               clock=sensor).run(arrivals[-1] + 0.2)
     t = res.columns["t_s"]
     stepped = set(np.round(t, 9))
     assert all(round(a, 9) in stepped for a in arrivals)  # a step at every arrival...
@@ -314,3 +314,75 @@ def test_measurement_trigger_needs_a_transport_that_signals_measurements(cfg, mo
                 settings, clock=SimClock())
     with pytest.raises(ValueError, match="signals measurements"):
         loop.run(0.01)
+
+
+class ThreadedSensor:
+    """Measurements delivered on a thread of their own (as Zenoh's), ``n`` of them ``gap_s`` apart; records
+    which thread computed each command and whether two steps ever overlapped."""
+
+    def __init__(self, n, gap_s):
+        import threading
+
+        self.n, self.gap_s, self.hook, self.done_at = n, gap_s, None, None
+        self.kept = []
+        self.inside = self.overlaps = 0
+        self.by_thread = collections.Counter()
+        self.thread = threading.Thread(target=self._deliver)
+
+    def on_measurement(self, hook):
+        self.hook = hook
+        if hook is not None and not self.thread.is_alive():
+            self.thread.start()
+
+    def _deliver(self):
+        import time
+
+        for _ in range(self.n):
+            time.sleep(self.gap_s)
+            arrival = time.perf_counter()
+            self.kept.append(20.0)
+            self.hook(arrival)
+        self.done_at = time.perf_counter()
+
+    def poll_measurement(self, accept):
+        return (self.kept.pop(), 0) if self.kept else (None, 0)
+
+    def command(self, duty_pct, t_s):
+        import threading
+        import time
+
+        self.inside += 1
+        self.overlaps += self.inside > 1
+        time.sleep(20e-6)  # a step long enough for the other thread to try
+        self.by_thread[threading.get_ident()] += 1
+        self.inside -= 1
+
+    def publish_error(self, t_s, error_lpm):
+        pass
+
+    def publish_status(self, t_s, status):
+        pass
+
+
+def test_measurement_trigger_steps_on_the_transports_thread_and_never_twice_at_once(cfg, model):
+    """Real clock, a delivering thread: its measurements are stepped on it (the command computed before
+    the hook returns), the loop's thread steps only as the watchdog, never both at once, and when the
+    measurements stop the watchdog's steps take the loop to safe."""
+    import dataclasses
+    import threading
+
+    import time
+
+    sensor = ThreadedSensor(100, 1e-3)
+    settings = dataclasses.replace(SETTINGS, trigger="measurement")
+    stale_s = settings.stale_ms * 1e-3
+    loop = Loop(controller_params(cfg, "ff", model), sensor, ProfileReference(lambda t: 30.0), settings,
+                clock=RealClock(0.0))
+    res = loop.run(stop=lambda: bool(sensor.done_at) and time.perf_counter() > sensor.done_at + 2 * stale_s)
+    sensor.thread.join()
+    assert sensor.overlaps == 0
+    delivered = sensor.by_thread[sensor.thread.ident]
+    assert delivered + res.overruns == 100  # each measurement stepped on its thread or taken by a watchdog step
+    assert delivered > 0 and sensor.by_thread[threading.get_ident()] > 0  # the watchdog stepped too
+    assert "stale" in res.faults.counts()
+    assert res.columns["state"][-1] == SAFE

@@ -1,39 +1,16 @@
-"""Event-driven stepping (``[loop] trigger = "measurement"``) over Zenoh, and its doorbell.
+"""Event-driven stepping (``[loop] trigger = "measurement"``) over Zenoh.
 
 Free ports on 127.0.0.1, peer mode, multicast scouting off.
 """
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import pytest
 
 zenoh = pytest.importorskip("zenoh")
 
-from controller.transport.zenoh import Doorbell  # noqa: E402
 from tests.zenoh_helpers import free_port, kill_valve_then_stop, reap, rows, valvectl, wait_for  # noqa: E402
-
-
-def test_doorbell_wakes_at_a_ring_counts_the_superseded_and_times_out_at_the_deadline():
-    bell = Doorbell()
-    assert bell.wait(time.perf_counter() + 0.01) == (None, 0)  # nothing rang: back at the deadline
-    bell.ring()
-    bell.ring()
-    arrival, superseded = bell.wait(time.perf_counter() + 10.0)  # rang before the wait: at once
-    assert arrival is not None and arrival <= time.perf_counter() and superseded == 1
-    t_ring = []
-
-    def later():
-        time.sleep(0.05)
-        t_ring.append(time.perf_counter())
-        bell.ring()
-
-    threading.Thread(target=later).start()
-    arrival, superseded = bell.wait(time.perf_counter() + 30.0)
-    assert superseded == 0 and arrival >= t_ring[0]  # woken by the ring, long before the deadline
-    assert bell.wait(time.perf_counter()) == (None, 0)  # each ring wakes one wait
 
 
 def test_controller_triggered_by_measurements_drives_the_valve_node_and_goes_safe_when_it_dies(tmp_path):

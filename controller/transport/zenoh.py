@@ -11,7 +11,10 @@ The loop thread receives: subscribers hand samples to a
 ``zenoh.handlers.RingChannel`` (the newest samples, never blocking Zenoh's
 threads) and the loop drains it with ``try_recv()`` once per step. A Python
 callback instead would wait for the GIL while the loop spins, ~5 ms a
-sample (the field notes' GIL trap). Commands go out with priority
+sample (the field notes' GIL trap). With ``trigger = "measurement"`` the
+measurements come through a callback instead, which runs the loop's step
+itself on Zenoh's thread (:meth:`ZenohTransport.on_measurement`): the loop's
+own thread then only sleeps, as the watchdog. Commands go out with priority
 ``REAL_TIME``, ``express`` (no batching) and congestion control ``DROP``: a
 late command is worth less than the next one.
 """
@@ -20,10 +23,8 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
-import math
 import os
 import sys
-import threading
 import time
 
 import zenoh
@@ -185,6 +186,10 @@ class Inbox:
         Time one poll may spend, s.
     max_bytes : int
         Largest payload parsed, bytes.
+    on_sample : callable, optional
+        ``on_sample(arrival_s)``, called on Zenoh's thread after each sample is kept (``arrival_s``:
+        ``time.perf_counter`` when it came); the samples are then kept by a Python callback, not a
+        ``RingChannel``.
     """
 
     def __init__(self, session, key: str, parse=parse_number, guard: SourceGuard | None = None, ring: int = RING,
@@ -192,12 +197,13 @@ class Inbox:
         if on_sample is None:
             self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
             self._try_recv = self.sub.try_recv
-        else:  # a callback keeps the ring and signals each sample (Doorbell): for a loop that sleeps until then
+        else:  # a callback keeps the ring and signals each sample: for a loop that steps at each one
             kept = collections.deque(maxlen=ring)
 
             def take(sample):
+                arrival_s = time.perf_counter()
                 kept.append(sample)
-                on_sample()
+                on_sample(arrival_s)
 
             def try_recv():
                 return kept.popleft() if kept else None
@@ -205,6 +211,7 @@ class Inbox:
             self.sub = session.declare_subscriber(key, take)
             self._try_recv = try_recv
         self.parse, self.guard, self.ring, self.budget_s, self.max_bytes = parse, guard, ring, budget_s, max_bytes
+        self.on_sample = on_sample
 
     def poll(self, accept=None) -> tuple[Message | None, int, int]:
         """``(newest accepted message or None, bad, spoofed)`` of the samples received since the last poll.
@@ -237,42 +244,6 @@ class Inbox:
 
     def undeclare(self) -> None:
         self.sub.undeclare()
-
-
-class Doorbell:
-    """Rings at each measurement, so a loop triggered by measurements sleeps until one arrives.
-
-    :meth:`ring` runs on Zenoh's thread for each sample (after the sample is
-    kept); :meth:`wait` sleeps (GIL released) until a ring or a deadline. The
-    callback costs Zenoh's thread the GIL for microseconds: the loop waiting
-    here does not hold it (a loop spinning on it would delay every sample:
-    the GIL trap of the field notes).
-    """
-
-    def __init__(self):
-        self._event = threading.Event()
-        self._lock = threading.Lock()
-        self._count = 0
-        self._last_s = math.nan
-
-    def ring(self) -> None:
-        t = time.perf_counter()
-        with self._lock:
-            self._count += 1
-            self._last_s = t
-        self._event.set()
-
-    def wait(self, deadline_s: float) -> tuple[float | None, int]:
-        """Until a measurement arrived or ``deadline_s`` (``time.perf_counter``):
-        ``(arrival time of the newest or None, measurements it superseded)``."""
-        timeout = deadline_s - time.perf_counter()
-        if timeout > 0:
-            self._event.wait(timeout)
-        with self._lock:
-            n, self._count = self._count, 0
-            self._event.clear()
-            last = self._last_s
-        return (last, n - 1) if n else (None, 0)
 
 
 class _Publisher:
@@ -312,10 +283,10 @@ class ZenohTransport:
     def __init__(self, session, valve_id: str = "insp", stale_s: float = 0.05, trigger: str = "period"):
         k = f"vent/valve/{valve_id}"
         self.session = session
-        # trigger "measurement": each measurement rings the loop awake (wait_measurement)
-        self.doorbell = Doorbell() if trigger == "measurement" else None
+        # trigger "measurement": each measurement calls the loop's hook on Zenoh's thread (on_measurement)
+        self._hook = None
         self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s),
-                             on_sample=self.doorbell.ring if self.doorbell is not None else None)
+                             on_sample=self._arrived if trigger == "measurement" else None)
         self.ref_in = Inbox(session, f"{k}/ref/flow")
         self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word)
         self.supply_in = Inbox(session, f"{k}/{AUX_KEYS['supply_bar']}")
@@ -339,9 +310,17 @@ class ZenohTransport:
         self.meas_seq = m.seq
         return m.value, rejects
 
-    def wait_measurement(self, deadline_s: float) -> tuple[float | None, int]:
-        """Sleep until a measurement arrives or ``deadline_s`` (:meth:`Doorbell.wait`; trigger ``measurement``)."""
-        return self.doorbell.wait(deadline_s)
+    def on_measurement(self, hook) -> None:
+        """Call ``hook(arrival_s)`` (``time.perf_counter``) on Zenoh's thread as each measurement arrives, after
+        it is kept for :meth:`poll_measurement`; None stops the calls (trigger ``measurement``)."""
+        if self.meas_in.on_sample is None:
+            raise ValueError("a transport opened with trigger 'period' signals no measurements")
+        self._hook = hook
+
+    def _arrived(self, arrival_s: float) -> None:
+        hook = self._hook
+        if hook is not None:
+            hook(arrival_s)
 
     def poll_mode(self) -> tuple[str | None, int]:
         """The newest controller word asked for on ``ctrl/mode``, and how many requests were malformed."""
