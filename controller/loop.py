@@ -106,6 +106,11 @@ class LoopSettings:
         :data:`WATCHDOG_PERIODS` periods after the previous step when none came
         (the sensor samples on its own clock; the transport must call the
         loop at each arrival: ``on_measurement(hook)``).
+    rehearse : bool
+        With ``trigger = "period"`` on the real clock: rehearse the step's
+        compiled calls and the reference on scratch copies just before each
+        deadline (:data:`REHEARSAL_S`), so that the step itself runs on warm
+        caches (:meth:`Loop.run`).
     alarms : AlarmSettings
         Thresholds and hold times of the online alarms.
     fallback : SupervisorSettings
@@ -122,6 +127,7 @@ class LoopSettings:
     spin_s: float = 300e-6
     rt_priority: int = 0
     trigger: str = "period"
+    rehearse: bool = True
     alarms: AlarmSettings = AlarmSettings()
     fallback: SupervisorSettings = SupervisorSettings()
 
@@ -132,6 +138,9 @@ class LoopSettings:
 WATCHDOG_PERIODS = 1.5
 #: The triggers of a step (:attr:`LoopSettings.trigger`).
 TRIGGERS = ("period", "measurement")
+#: With :attr:`LoopSettings.rehearse`: the loop wakes this much earlier than its spin, for the rehearsal (~20-30 us
+#: cold), so that the rehearsal ends before the deadline and the step is not made late by it.
+REHEARSAL_S = 50e-6
 
 
 @contextlib.contextmanager
@@ -163,11 +172,15 @@ class RealClock:
     def now() -> float:
         return time.perf_counter()
 
-    def wait_until(self, deadline: float) -> float:
+    def wait_until(self, deadline: float, rehearse=None) -> float:
+        """Sleep, then spin, to ``deadline``; ``rehearse()``, if given, runs between the two
+        (:data:`REHEARSAL_S` earlier), unless the deadline has passed already."""
         pc = time.perf_counter
-        rest = deadline - pc() - self.spin_s
+        rest = deadline - pc() - self.spin_s - (0.0 if rehearse is None else REHEARSAL_S)
         if rest > 0:
             time.sleep(rest)
+        if rehearse is not None and pc() < deadline:
+            rehearse()
         now = pc()
         while now < deadline:
             now = pc()
@@ -191,7 +204,8 @@ class SimClock:
     def now(self) -> float:
         return self.t
 
-    def wait_until(self, deadline: float) -> float:
+    def wait_until(self, deadline: float, rehearse=None) -> float:
+        """Jump to ``deadline``: simulated time costs nothing to wait and needs no rehearsal."""
         self.t = max(self.t, deadline)
         return self.t
 
@@ -221,6 +235,12 @@ class ProfileReference:
             return None
         v = float(self._value(t_s + self.preview_s))
         return v if accept(v) else None
+
+    def rehearse(self, t_s: float) -> None:
+        """Evaluate the reference at ``t_s`` (and ahead) for nothing: the loop's rehearsal (the value is pure)."""
+        self._value(t_s)
+        if self.preview_s > 0:
+            self._value(t_s + self.preview_s)
 
 
 class _Columns:
@@ -524,9 +544,25 @@ class Loop:
                 finally:
                     serve(None)
             else:
+                rehearse = None
+                if cfg.rehearse and real_time:
+                    transport_rehearse = getattr(transport, "rehearse", None)
+                    reference_rehearse = getattr(reference, "rehearse", None)
+
+                    def rehearse() -> None:
+                        # The next step's compiled calls and reference, on scratch copies, in the spin before
+                        # its deadline: a step after ~1 ms of sleep finds its code and data evicted (other
+                        # processes, the hypervisor) and ran 2-3x slower than back to back; rehearsed, the
+                        # step itself (all of its work, timed as ever) runs on warm caches.
+                        sup.rehearse(period)
+                        if transport_rehearse is not None:
+                            transport_rehearse()
+                        if reference_rehearse is not None:
+                            reference_rehearse(deadline - t0)
+
                 deadline = t0
                 while True:
-                    step(clock.wait_until(deadline), deadline)
+                    step(clock.wait_until(deadline, rehearse), deadline)
                     if stop is not None and stop():
                         break
                     if n_steps is not None and steps >= n_steps:

@@ -112,6 +112,10 @@ class Supervisor:
         finally:
             self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag = saved
 
+    def rehearse(self, dt_s: float) -> None:
+        """The law in force's last step again on scratch copies (:meth:`control.Live.rehearse`): nothing changes."""
+        self._live[self.word].rehearse(dt_s)
+
     def request(self, word: str) -> bool:
         """Ask for ``word`` from the next step on; False (nothing changes) for a word this run lacks."""
         if word not in self.laws:

@@ -26,6 +26,7 @@ from typing import Annotated, Literal, NamedTuple, Sequence
 import msgspec
 import numpy as np
 
+from models.direct import direct
 from models.model import FittedModel, load_model
 from models.recording import InputError
 from models.schema import Finite, NonNegative, Positive, convert
@@ -502,15 +503,29 @@ class RunningPlant:
         self._batch = batch
         self.k = state.k
         self._ms, self._x, self._buf = state.model.copy(), state.x.copy(), state.buf.copy()
+        # the kernel's machine code, called without numba's dispatcher (models.direct)
+        self._step_one = direct(K.step_one, batch._P, batch._MP, batch._EV, batch._keys, self._ms, self._x, self._buf,
+                                self.k, 0.0)
+        self._scratch = self._ms.copy(), self._x.copy(), self._buf.copy()  # rehearse()'s state
 
     @property
     def state(self) -> PlantState:
         """A copy of the present state."""
         return PlantState(self.k, self._ms.copy(), self._x.copy(), self._buf.copy())
 
+    def rehearse(self, duty_pct: float) -> None:
+        """The next step on a scratch copy of the state: its machine code and data pass through the
+        caches, and the valve is untouched (a live loop's rehearsal before its deadline)."""
+        b = self._batch
+        ms, x, buf = self._scratch
+        np.copyto(ms, self._ms)
+        np.copyto(x, self._x)
+        np.copyto(buf, self._buf)
+        self._step_one(b._P, b._MP, b._EV, b._keys, ms, x, buf, self.k, float(duty_pct))
+
     def step(self, duty_pct: float) -> PlantOutput:
         """One step: command ``duty_pct`` (%), read the flow (L/min)."""
         b = self._batch
-        out = K.step_one(b._P, b._MP, b._EV, b._keys, self._ms, self._x, self._buf, self.k, float(duty_pct))
+        out = self._step_one(b._P, b._MP, b._EV, b._keys, self._ms, self._x, self._buf, self.k, float(duty_pct))
         self.k += 1
         return PlantOutput(*out)

@@ -386,3 +386,40 @@ def test_measurement_trigger_steps_on_the_transports_thread_and_never_twice_at_o
     assert delivered > 0 and sensor.by_thread[threading.get_ident()] > 0  # the watchdog stepped too
     assert "stale" in res.faults.counts()
     assert res.columns["state"][-1] == SAFE
+
+
+def test_rehearsals_change_nothing(cfg, model):
+    """The loop's rehearsal before each deadline (a law's and the valve's step on scratch copies) leaves
+    the law and the valve exactly where they were: steps interleaved with rehearsals are bit-identical."""
+    from controller.laws import control
+
+    p = controller_params(cfg, "ff+kf", model)
+    rng = np.random.default_rng(5)
+    ref, meas = rng.uniform(0, 80, 200), rng.uniform(0, 80, 200)
+    runs = []
+    for rehearse in (False, True):
+        law, valve = control.Live(p), sim_plant(cfg, seed=1).running(sim_plant(cfg).init(0.0))
+        law.load(control.init(p, 0.0))
+        out = []
+        for k in range(len(ref)):
+            if rehearse:
+                law.rehearse(1e-3)
+                valve.rehearse(float(k % 70))
+            duty = law.step(ref[k], meas[k], ref[k], 1e-3)
+            out.append((*duty[:4], valve.step(duty[0]).flow_lpm))
+        runs.append(np.array(out))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_real_clock_rehearses_before_the_deadline_only():
+    """The rehearsal runs once, after the sleep and before the deadline (a host that woke the loop past the
+    deadline skips it); a deadline already passed gets none."""
+    import time
+
+    clock, at = RealClock(50e-6), []
+    deadline = time.perf_counter() + 20e-3
+    woke = clock.wait_until(deadline, lambda: at.append(time.perf_counter()))
+    assert len(at) <= 1 and all(deadline - 20e-3 + 5e-3 < a < deadline for a in at) and woke >= deadline
+    at.clear()
+    clock.wait_until(time.perf_counter() - 1e-3, lambda: at.append(time.perf_counter()))
+    assert at == []

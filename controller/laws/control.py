@@ -50,6 +50,7 @@ from numba import njit
 from . import feedforward as ffw
 from . import kalman, limits, pid
 from models.borrow import borrow
+from models.direct import direct
 
 MODES = ("pid", "ff", "ff+pid", "ff+kf")
 PID, FF, FF_PID, FF_KF = range(4)
@@ -376,7 +377,11 @@ class Live:
             offset[i] += a.size
         self._L = np.array(layout, dtype=np.int64)
         self._mode, self._lead = k.mode, k.lead
+        # the kernel's machine code, called without numba's dispatcher (models.direct)
+        self._step = direct(_live_step, k.mode, k.lead, self._F, self._I, self._L, 0.0, 0.0, 0.0, 0.0)
         self._saved = views[_X_SAVED], views[_FWD_SAVED], views[_HIST_SAVED], views[_POS_SAVED]
+        self._io = views[_IO]
+        self._scratch = self._F.copy(), self._I.copy()  # rehearse()'s buffers
         self.state = ControllerState(k.mode, views[_X], views[_FWD], views[_HIST], views[_POS])
 
     def load(self, s: ControllerState) -> ControllerState:
@@ -388,7 +393,17 @@ class Live:
     def step(self, ref_lpm: float, meas_lpm: float, ff_ref_lpm: float, dt_s: float) -> tuple:
         """One period in place: ``(duty, ff, fb, limit, predicted, m)`` (%, and for ``ff+kf`` the filter's
         flow predicted for this step and the delayed model flow ``m[k-1-d]`` before it, L/min; else nan)."""
-        return _live_step(self._mode, self._lead, self._F, self._I, self._L, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
+        return self._step(self._mode, self._lead, self._F, self._I, self._L, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
+
+    def rehearse(self, dt_s: float) -> None:
+        """The last step again, on scratch copies of the buffers: the machine code and the data of a
+        step pass through the caches, and the state is untouched (the loop's rehearsal before a
+        deadline, :class:`controller.loop.LoopSettings`)."""
+        F, I = self._scratch
+        np.copyto(F, self._F)
+        np.copyto(I, self._I)
+        io = self._io
+        self._step(self._mode, self._lead, F, I, self._L, float(io[0]), float(io[1]), float(io[2]), dt_s)
 
     def rollback(self) -> ControllerState:
         """Undo the last :meth:`step` (a step whose duty cannot be commanded); returns :attr:`state`."""

@@ -63,6 +63,10 @@ class SimTransport:
         self.last = self._valve.step(duty_pct)
         self._meas = self.last.flow_lpm
 
+    def rehearse(self) -> None:
+        """The valve's next step on a scratch copy (:meth:`plant_sim.plant.RunningPlant.rehearse`): nothing changes."""
+        self._valve.rehearse(self._duty)
+
     def publish_error(self, t_s: float, error_lpm: float) -> None:
         """Nothing listens in-process: the loop records the error."""
 
