@@ -162,6 +162,19 @@ def realtime(priority: int):
         os.sched_setscheduler(0, old_policy, old_param)
 
 
+def _lift(priority: int):
+    """The calling thread under ``SCHED_FIFO`` at ``priority`` for good: its former ``(policy, param)``, to
+    restore by its native id, or None (unchanged: no permission, or no such scheduler)."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        return None
+    old = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError:
+        return None
+    return old
+
+
 class RealClock:
     """Wall clock: hybrid sleep-then-spin to absolute deadlines on ``time.perf_counter``."""
 
@@ -512,12 +525,17 @@ class Loop:
                 lock = threading.Lock()  # one step at a time
                 serving, failed = True, []
                 last_wake = t0 - watch
+                # The transport's threads that step run at the loop's priority while it runs (Zenoh's own
+                # are below it, [zenoh] io_priority): the step is the loop's work wherever it runs.
+                lifted, priority = {}, cfg.rt_priority if real_time else 0
 
                 def arrived(arrival_s: float) -> None:
                     nonlocal overruns, serving
                     with lock:
                         if not serving:
                             return
+                        if priority and threading.get_native_id() not in lifted:
+                            lifted[threading.get_native_id()] = _lift(priority)
                         if last_wake >= arrival_s:  # taken along by a step that came first
                             overruns += 1
                             return
@@ -543,6 +561,11 @@ class Loop:
                                 break
                 finally:
                     serve(None)
+                    with lock:
+                        for tid, old in lifted.items():
+                            if old is not None:
+                                with contextlib.suppress(OSError):  # a thread that ended meanwhile
+                                    os.sched_setscheduler(tid, *old)
             else:
                 rehearse = None
                 if cfg.rehearse and real_time:
