@@ -9,7 +9,8 @@ timeout closes the valve: a dead controller commands nothing, so after
 It also publishes the supply pressure and the coil temperature at
 ``aux_hz`` (the plant's outputs; keys :data:`controller.transport.zenoh.AUX_KEYS`),
 and times the round trip from publishing a measurement to receiving the
-command computed from it (the command's ``meas_seq``).
+command computed from it (the command's ``meas_seq``). Like the control loop, it
+runs with the garbage collector paused.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .loop import gc_paused
 from .watchdog import Watchdog, in_range
 
 #: Publication times kept for the round trip, by ``seq`` modulo this (s of measurements at 1 kHz).
@@ -56,6 +58,12 @@ class ValveNode:
         self.stats = NodeStats()
 
     def run(self, duration_s: float | None = None, stop=None) -> NodeStats:
+        """Step until ``duration_s`` or ``stop()``, the garbage collector paused (:func:`controller.loop.gc_paused`:
+        a full collection here stood the node still for ~0.1 s, past the controller's ``stale_ms``)."""
+        with gc_paused():
+            return self._run(duration_s, stop)
+
+    def _run(self, duration_s: float | None, stop) -> NodeStats:
         period = 1.0 / self.rate_hz
         accept = in_range(0.0, 100.0)
         st = self.stats = NodeStats()  # kept on the node: an interrupted run still reports

@@ -423,3 +423,38 @@ def test_real_clock_rehearses_before_the_deadline_only():
     at.clear()
     clock.wait_until(time.perf_counter() - 1e-3, lambda: at.append(time.perf_counter()))
     assert at == []
+
+
+def test_the_loop_and_the_valve_node_run_with_the_collector_paused_and_restore_it(cfg, model):
+    """A full collection stands a process still for longer than stale_ms: neither the loop nor the node lets one
+    start while it runs, and both hand the collector back as they found it."""
+    import gc
+
+    from controller.valve_node import ValveNode
+
+    class Link:
+        seq = 0
+
+        def poll_command(self, accept):
+            return None, 0, None
+
+        def publish_flow(self, t_s, flow_lpm):
+            self.seq += 1
+            return self.seq
+
+        def publish_aux(self, t_s, values):
+            pass
+
+    seen = []
+
+    def stop():
+        seen.append((gc.isenabled(), gc.get_freeze_count() > 0))
+        return len(seen) >= 5
+
+    assert gc.isenabled()
+    loop = Loop(controller_params(cfg, "pid", model), SimTransport(sim_plant(cfg)), ProfileReference(square), SETTINGS,
+                clock=SimClock())
+    loop.run(None, stop=stop)
+    ValveNode(sim_plant(cfg), Link(), RATE, 0.1, SimClock()).run(None, stop=stop)
+    assert seen and all(s == (False, True) for s in seen)
+    assert gc.isenabled() and gc.get_freeze_count() == 0
