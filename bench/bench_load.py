@@ -20,12 +20,17 @@ alternating; each under the normal scheduler at nice 0 (set explicitly and check
 the bench runs under), as are the controller and the node before they raise their own threads.
 Printed per case: controller steps, overruns (and their share), stale faults during the run,
 valve-node steps, commands received per node step, command timeouts, round trip p50/p99 (node
-side: measurement published -> the command computed from it received). The node is stopped
+side: measurement published -> the command computed from it received), the node's longest gap between two
+published measurements, and the hypervisor's steal during the case (/proc/stat: time the VM's CPUs were
+frozen by the host; every loop misses its deadlines then). The node is stopped
 just before the controller's last step so that neither sees the other's end as a fault; stale
 faults are counted from the controller's recording (running -> safe transitions). The load
 average before and after is printed: other work on the machine shows there.
 
-Usage: ``.venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 1] [--flood]``.
+The default run is issue 11's condition (20 s, one hog per core) with and without the measures, and says
+whether it is met; ``--repeat N`` runs the cases N times, interleaved, with each case's median and worst.
+
+Usage: ``.venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 1] [--repeat 1] [--flood]``.
 Needs root (or CAP_SYS_NICE) for SCHED_FIFO; without it the FIFO cases run under the normal
 scheduler (the processes say so) and the comparison shows nothing.
 """
@@ -242,7 +247,7 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
            "compute_max_us": s["compute_us"]["max"], "lateness_max_us": s["lateness_us"]["max"],
            "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]},
            "bad_commands": n.get("bad_commands"), "stalled": {f["kind"]: f["count"] for f in s["faults"]}.get("stalled", 0),
-           "steal_ms": steal_ms}
+           "steal_ms": steal_ms, "node_gap_max_ms": n.get("publish_gap_ms", {}).get("max")}
     if flood:  # the flooded process: its share of the configured rate and its longest step
         if at_node:
             row["flooded_rate_pct"] = 100.0 * n["steps"] / max(1, n["steps"] + n["overruns"])
@@ -303,13 +308,15 @@ def main() -> None:
     print(f"{cores} cores, {hogs} hogs ({kinds}; SCHED_OTHER, nice 0), "
           f"{a.duration:g} s per case; load average 1/5/15 min before {'/'.join(f'{x:.2f}' for x in load_before)}, "
           f"after {'/'.join(f'{x:.2f}' for x in load_after)}; {kernel_facts()}")
+    print("stalled: controller steps that stood still past stale_ms; node gap: the longest time between two "
+          "measurements the node published (a stale fault with a node gap as long is the node standing still)")
     print("host steal: CPU time the hypervisor withheld from this VM during the case (both vCPUs frozen: every "
           "loop misses its deadlines then, whatever its priority; 0 on bare metal)")
     hdr = ("case", "rep", "rate Hz", "steps", "overruns", "overrun %", "stale", "stalled", "node steps", "fresh cmd %",
-           "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "host steal ms")
+           "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "node gap max ms", "host steal ms")
     keys = ("case", "rep", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "stalled", "node_steps",
             "fresh_cmd_pct", "cmd_timeouts", "rt_p50_us", "rt_p99_us", "compute_max_us", "lateness_max_us",
-            "steal_ms")
+            "node_gap_max_ms", "steal_ms")
     print(" | ".join(hdr))
     for r in rows:
         cells = []

@@ -9,8 +9,10 @@ timeout closes the valve: a dead controller commands nothing, so after
 It also publishes the supply pressure and the coil temperature at
 ``aux_hz`` (the plant's outputs; keys :data:`controller.transport.zenoh.AUX_KEYS`),
 and times the round trip from publishing a measurement to receiving the
-command computed from it (the command's ``meas_seq``). Like the control loop, it
-runs with the garbage collector paused.
+command computed from it (the command's ``meas_seq``), and keeps the longest time
+between two of its measurements: a controller's ``stale`` fault with a gap here
+as long is the node standing still, not the transport. Like the control loop,
+it runs with the garbage collector paused.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ class NodeStats:
     bad_commands: int = 0
     timeouts: int = 0  # times the command timeout closed the valve
     compute_max_s: float = 0.0  # longest step, wake to end, s
+    publish_gap_max_s: float = 0.0  # longest time between two published measurements, s (the node standing still)
     round_trip_s: array = field(default_factory=lambda: array("d"))  # measurement published -> its command received
 
     def to_json(self) -> dict:
@@ -42,7 +45,8 @@ class NodeStats:
         pct = {k: (float(np.percentile(rt, q)) * 1e6 if len(rt) else None) for k, q in (("p50", 50), ("p99", 99))}
         return {"steps": self.steps, "overruns": self.overruns, "commands": self.commands,
                 "bad_commands": self.bad_commands, "command_timeouts": self.timeouts,
-                "round_trip_us": {**pct, "n": len(rt)}, "compute_us": {"max": self.compute_max_s * 1e6}}
+                "round_trip_us": {**pct, "n": len(rt)}, "compute_us": {"max": self.compute_max_s * 1e6},
+                "publish_gap_ms": {"max": self.publish_gap_max_s * 1e3}}
 
 
 class ValveNode:
@@ -75,6 +79,7 @@ class ValveNode:
         deadline = t0
         sent_t = np.full(SEQ_RING, np.nan)  # publication time of measurement seq, at seq % SEQ_RING
         sent_seq = np.full(SEQ_RING, -1, dtype=np.int64)
+        last_published = t0
         while True:
             now = clock.wait_until(deadline)
             t = now - t0
@@ -91,7 +96,11 @@ class ValveNode:
                 st.timeouts += 1
             state, out = self.plant.step(state, duty)
             seq = self.transport.publish_flow(t, out.flow_lpm)
-            sent_t[seq % SEQ_RING], sent_seq[seq % SEQ_RING] = clock.now(), seq
+            published = clock.now()
+            if st.steps:
+                st.publish_gap_max_s = max(st.publish_gap_max_s, published - last_published)
+            last_published = published
+            sent_t[seq % SEQ_RING], sent_seq[seq % SEQ_RING] = published, seq
             if self.aux_every and st.steps % self.aux_every == 0:
                 self.transport.publish_aux(t, {"supply_bar": out.supply_bar, "coil_temp_c": out.coil_temp_c})
             st.steps += 1

@@ -458,3 +458,31 @@ def test_the_loop_and_the_valve_node_run_with_the_collector_paused_and_restore_i
     ValveNode(sim_plant(cfg), Link(), RATE, 0.1, SimClock()).run(None, stop=stop)
     assert seen and all(s == (False, True) for s in seen)
     assert gc.isenabled() and gc.get_freeze_count() == 0
+
+
+def test_the_valve_node_reports_its_longest_gap_between_measurements(cfg):
+    """A node that stands still (here: one publication taking 70 ms) reports that gap, so a controller's stale
+    fault can be told apart from a transport that lost the measurements."""
+    from controller.valve_node import ValveNode
+
+    clock = SimClock()
+
+    class Slow:
+        seq = 0
+
+        def poll_command(self, accept):
+            return None, 0, None
+
+        def publish_flow(self, t_s, flow_lpm):
+            self.seq += 1
+            if self.seq == 6:
+                clock.t += 0.070
+            return self.seq
+
+        def publish_aux(self, t_s, values):
+            pass
+
+    st = ValveNode(sim_plant(cfg), Slow(), RATE, 0.1, clock).run(0.2)
+    assert st.publish_gap_max_s == pytest.approx(0.070 + 1 / RATE)
+    assert st.to_json()["publish_gap_ms"]["max"] == pytest.approx(71.0)
+    assert st.overruns == 70

@@ -15,7 +15,8 @@ def add_arguments(p) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default or 0: until interrupted)")
     p.add_argument("--json", default=None, metavar="N.json",
                    help='{"steps","overruns","commands","bad_commands","command_timeouts","round_trip_us":{"p50","p99"},'
-                        '"compute_us":{"max"}} (compute: the longest step, wake to end)')
+                        '"compute_us":{"max"},"publish_gap_ms":{"max"}} (compute: the longest step, wake to end; '
+                        'publish gap: the longest time between two published measurements)')
 
 
 def run(args) -> int:
