@@ -425,25 +425,31 @@ def test_real_clock_rehearses_before_the_deadline_only():
     assert at == []
 
 
+class NodeLink:
+    """A valve node's transport that never commands; ``on_publish(seq)`` is called at each measurement."""
+
+    def __init__(self, on_publish=None):
+        self.seq, self.on_publish = 0, on_publish
+
+    def poll_command(self, accept):
+        return None, 0, None
+
+    def publish_flow(self, t_s, flow_lpm):
+        self.seq += 1
+        if self.on_publish is not None:
+            self.on_publish(self.seq)
+        return self.seq
+
+    def publish_aux(self, t_s, values):
+        pass
+
+
 def test_the_loop_and_the_valve_node_run_with_the_collector_paused_and_restore_it(cfg, model):
     """A full collection stands a process still for longer than stale_ms: neither the loop nor the node lets one
     start while it runs, and both hand the collector back as they found it."""
     import gc
 
     from controller.valve_node import ValveNode
-
-    class Link:
-        seq = 0
-
-        def poll_command(self, accept):
-            return None, 0, None
-
-        def publish_flow(self, t_s, flow_lpm):
-            self.seq += 1
-            return self.seq
-
-        def publish_aux(self, t_s, values):
-            pass
 
     seen = []
 
@@ -455,7 +461,7 @@ def test_the_loop_and_the_valve_node_run_with_the_collector_paused_and_restore_i
     loop = Loop(controller_params(cfg, "pid", model), SimTransport(sim_plant(cfg)), ProfileReference(square), SETTINGS,
                 clock=SimClock())
     loop.run(None, stop=stop)
-    ValveNode(sim_plant(cfg), Link(), RATE, 0.1, SimClock()).run(None, stop=stop)
+    ValveNode(sim_plant(cfg), NodeLink(), RATE, 0.1, SimClock()).run(None, stop=stop)
     assert seen and all(s == (False, True) for s in seen)
     assert gc.isenabled() and gc.get_freeze_count() == 0
 
@@ -467,22 +473,11 @@ def test_the_valve_node_reports_its_longest_gap_between_measurements(cfg):
 
     clock = SimClock()
 
-    class Slow:
-        seq = 0
+    def stand_still(seq):
+        if seq == 6:
+            clock.t += 0.070
 
-        def poll_command(self, accept):
-            return None, 0, None
-
-        def publish_flow(self, t_s, flow_lpm):
-            self.seq += 1
-            if self.seq == 6:
-                clock.t += 0.070
-            return self.seq
-
-        def publish_aux(self, t_s, values):
-            pass
-
-    st = ValveNode(sim_plant(cfg), Slow(), RATE, 0.1, clock).run(0.2)
+    st = ValveNode(sim_plant(cfg), NodeLink(stand_still), RATE, 0.1, clock).run(0.2)
     assert st.publish_gap_max_s == pytest.approx(0.070 + 1 / RATE)
     assert st.to_json()["publish_gap_ms"]["max"] == pytest.approx(71.0)
     assert st.overruns == 70
