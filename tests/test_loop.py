@@ -481,3 +481,66 @@ def test_the_valve_node_reports_its_longest_gap_between_measurements(cfg):
     assert st.publish_gap_max_s == pytest.approx(0.070 + 1 / RATE)
     assert st.to_json()["publish_gap_ms"]["max"] == pytest.approx(71.0)
     assert st.overruns == 70
+
+
+def _can_fifo() -> bool:
+    """Whether this process may put a thread under SCHED_FIFO (asked of a thread of its own, which then ends)."""
+    import os
+    import threading
+
+    ok = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            ok.append(True)
+        except (AttributeError, PermissionError):
+            ok.append(False)
+
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join()
+    return ok[0]
+
+
+def test_measurement_trigger_runs_the_steps_at_the_loops_priority_and_restores_it(cfg, model):
+    """The transport's thread that steps runs under SCHED_FIFO at the loop's rt_priority during the run, and
+    under its own scheduling again after it."""
+    import dataclasses
+    import os
+    import threading
+    import time
+
+    if not _can_fifo():
+        pytest.skip("no permission for SCHED_FIFO")
+    seen, after, release = [], [], threading.Event()
+
+    class Sensor(ThreadedSensor):
+        """Its thread started before the run (under the scheduling of the test), delivering once hooked."""
+
+        def on_measurement(self, hook):
+            self.hook = hook
+            hooked.set()
+
+        def command(self, duty_pct, t_s):
+            if threading.current_thread() is self.thread:
+                seen.append(os.sched_getscheduler(0))
+
+        def _deliver(self):
+            before = os.sched_getscheduler(0)
+            hooked.wait(30)
+            super()._deliver()
+            release.wait(30)
+            after.append((before, os.sched_getscheduler(0)))
+
+    hooked = threading.Event()
+    sensor = Sensor(30, 1e-3)
+    sensor.thread.start()
+    settings = dataclasses.replace(SETTINGS, trigger="measurement", rt_priority=1)
+    loop = Loop(controller_params(cfg, "ff", model), sensor, ProfileReference(lambda t: 30.0), settings,
+                clock=RealClock(0.0))
+    loop.run(stop=lambda: bool(sensor.done_at) and time.perf_counter() > sensor.done_at + 0.01)
+    release.set()
+    sensor.thread.join()
+    assert seen and all(p == os.SCHED_FIFO for p in seen)
+    assert after == [(after[0][0], after[0][0])] and after[0][0] != os.SCHED_FIFO  # restored after the run
