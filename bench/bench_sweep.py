@@ -1,103 +1,136 @@
-"""Sweep speed: the batched sweep against the live-loop code run once per candidate, in one run.
+"""Sweep speed and rows: this checkout against a baseline commit's implementation, in one run.
 
-The default sweep (``config/sweep.toml``: over 1000 candidates, each on every
-plant variant, a 5 s breath profile at 1 kHz) runs through ``run_sweep`` on a
-local process pool (one worker per core). The baseline is the live loop
-(:class:`controller.loop.Loop` on a simulated clock with the in-process
-simulated valve, exactly what ``valvectl run`` steps) run once per candidate
-and variant, for a stratified sample of the same candidates (every k-th row,
-so the controller words appear in the sweep's proportions). Both are timed
-in wall-clock seconds and in CPU seconds (this process and its pool
-workers): the CPU figure compares the two at equal cores and moves less
-when other work shares the machine, which the wall figures do not survive.
+Prints the figures of issue 16's "Done when" for the default sweep
+(``config/sweep.toml``: 1019 candidates x 3 plant variants x 5 s at 1 kHz):
 
-Usage: ``python bench/bench_sweep.py [SWEEP.toml] [--baseline N]``.
+- **warm**: the sweep's own ``seconds`` (what ``valvectl sweep`` reports: build, simulate,
+  rank, margins; imports and kernel loading excluded by a small sweep before it in the
+  same process), best and median over ``--rounds`` fresh processes, alternating this
+  checkout and the baseline (``--baseline``, default 7a8da92: main when the sweep's
+  speed work of this session began), so both see the same machine; the ratio of the two;
+- **rows**: the largest relative difference of every figure against the issue's original
+  sweep (:mod:`bench.sweep_rows`: commit 9861ad8, stored rows), for this checkout and for
+  the baseline;
+- **first run** (``--first-run``): wall seconds of ``valvectl sweep`` as the first process
+  after install, in a temporary copy of this checkout whose numba caches start empty:
+  the install's ahead-of-time compile (``make setup``'s ``python -m controller.precompile``)
+  timed apart, then the sweep process from start to exit; with ``--cold`` also the
+  first run of a copy nobody precompiled (the run compiles its kernels itself).
+
+The baseline is unpacked once (``git archive``) into ``$TMPDIR/valvectl-bench-COMMIT`` and its
+kernels compiled there on first use; later bench runs reuse it. Run at normal priority on a
+quiet machine (the load average is printed): the machine's other work is in every figure.
+
+Usage: ``python bench/bench_sweep.py [--rounds N] [--baseline COMMIT] [--first-run] [--cold]``.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import resource
+import os
+import shutil
+import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import sweep_rows  # noqa: E402
 
-from controller.config import preview_s  # noqa: E402
-from controller.loop import Loop, ProfileReference, SimClock  # noqa: E402
-from controller.sweep import runner  # noqa: E402
-from controller.sweep import spec as sp  # noqa: E402
-from controller.sweep.distributed import default_workers  # noqa: E402
-from controller.transport.sim import SimTransport  # noqa: E402
-from plant_sim.plant import Plant  # noqa: E402
-from plant_sim.protocols import BreathProfile  # noqa: E402
+ROOT = sweep_rows.ROOT
+SWEEP = ROOT / "config" / "sweep.toml"
+WARM_LIMIT_S, FIRST_LIMIT_S, ROWS_LIMIT = 3.0, 6.0, 1e-9
 
 
-def cpu_s() -> float:
-    """CPU seconds of this process and of its finished children (the pool's workers)."""
-    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+def baseline_tree(commit: str) -> Path:
+    """The baseline's files, unpacked and precompiled once (kept for later bench runs)."""
+    tree = Path(tempfile.gettempdir()) / f"valvectl-bench-{commit}"
+    if not (tree / ".precompiled").exists():
+        sweep_rows.unpack(commit, tree)
+        print(f"  (baseline {commit}: compiling its kernels into {tree}, once)", flush=True)
+        precompile(tree)
+        (tree / ".precompiled").touch()
+    return tree
 
 
-def live_loop_seconds(s: sp.SweepSpec, idx, plants, models) -> tuple[float, float]:
-    """Wall and CPU time of the live loop run once per candidate in ``idx`` and per plant variant."""
-    run = s.run
-    rate = run["loop"]["rate_hz"]
-    c0, t0 = cpu_s(), time.perf_counter()
-    for i in idx:
-        word, row = s.candidates.controller[i], s.candidates.row(i)
-        cfg = sp.apply(run, word, row)
-        params, _ = runner.build_one(run, word, row, models)
-        profile = BreathProfile(**cfg["profile"])
-        for plant in plants:
-            transport = SimTransport(Plant(plant, rate, seed=run[""]["seed"]), cfg.loop.safe_duty_pct)
-            ref = ProfileReference(profile.value, preview_s(cfg, "profile"))
-            Loop(params, transport, ref, cfg.loop, clock=SimClock()).run(s.duration_s)
-    return time.perf_counter() - t0, cpu_s() - c0
+def precompile(tree: Path) -> float:
+    """``make setup``'s ahead-of-time step in ``tree``; wall seconds."""
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "controller.precompile"], cwd=tree, check=True, stdout=subprocess.DEVNULL,
+                   env={**os.environ, "PYTHONPATH": str(tree)})
+    return time.perf_counter() - t
 
 
-def subset(s: sp.SweepSpec, idx) -> sp.SweepSpec:
-    return dataclasses.replace(s, candidates=s.candidates.take(idx), margins_top=0)
+def copy_checkout(dest: Path) -> Path:
+    """This checkout's files (tracked and untracked, not ignored: no caches, no .venv) in ``dest``."""
+    files = subprocess.run(["git", "-C", str(ROOT), "ls-files", "-co", "--exclude-standard", "-z"], check=True,
+                           capture_output=True).stdout.decode().split("\0")
+    for f in filter(None, files):
+        src = ROOT / f
+        if src.is_file():
+            (dest / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / f)
+    return dest
+
+
+def first_run_s(tree: Path, out: Path) -> float:
+    """Wall seconds of ``valvectl sweep`` in ``tree`` as a fresh process, start to exit."""
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "controller.cli", "sweep", "-o", str(out)], cwd=tree, check=True,
+                   stdout=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(tree)})
+    return time.perf_counter() - t
+
+
+def stats(xs: list[float]) -> tuple[float, float]:
+    return min(xs), statistics.median(xs)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sweep", nargs="?", default=str(ROOT / "config" / "sweep.toml"))
-    ap.add_argument("--baseline", type=int, default=8, help="candidates run one at a time by the live loop")
+    ap.add_argument("--rounds", type=int, default=3, help="fresh processes per implementation, alternating")
+    ap.add_argument("--baseline", default="7a8da92", help="commit whose implementation is the baseline")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--first-run", action="store_true", help="also the first run after install (a temporary copy)")
+    ap.add_argument("--cold", action="store_true", help="with --first-run: also a first run nobody precompiled")
     a = ap.parse_args()
 
-    s = sp.load_sweep(a.sweep)
-    n, V = len(s.candidates), len(s.variants)
-    steps = int(round(s.duration_s * s.run["loop"]["rate_hz"]))
-    plants = sp.plants(s.run, s.variants, s.path)
-    models = runner.load_models(s)
-    workers = default_workers()
-    print(f"sweep {a.sweep}: {n} candidates x {V} plant variants, {s.duration_s:g} s at "
-          f"{s.run['loop']['rate_hz']:g} Hz ({steps} steps), {workers} workers")
+    print(f"sweep {SWEEP.relative_to(ROOT)}, {a.workers} workers; load average {os.getloadavg()[0]:.1f}")
+    base = baseline_tree(a.baseline)
+    original = sweep_rows.load_stored()
+    warm = {"this checkout": [], f"baseline {a.baseline}": []}
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(a.rounds):
+            order = [("this checkout", ROOT), (f"baseline {a.baseline}", base)]
+            for name, tree in order if i % 2 == 0 else order[::-1]:
+                r = sweep_rows.run_in_tree(tree, SWEEP, Path(tmp) / "rows.json", a.workers)
+                warm[name].append(r["seconds"])
+                rows.setdefault(name, r)
+        print(f"warm sweep seconds over {a.rounds} rounds (load average now {os.getloadavg()[0]:.1f}):")
+        for name, xs in warm.items():
+            best, med = stats(xs)
+            print(f"  {name:22s} best {best:5.2f} s  median {med:5.2f} s  ({', '.join(f'{x:.2f}' for x in xs)})")
+        (b_new, m_new), (b_old, m_old) = (stats(xs) for xs in warm.values())
+        print(f"  ratio this/baseline: best {b_new / b_old:.2f}, median {m_new / m_old:.2f}; "
+              f"{'within' if b_new <= WARM_LIMIT_S else 'NOT within'} {WARM_LIMIT_S:g} s (best)")
+        print(f"rows against the original sweep (commit {original['commit']}):")
+        for name, r in rows.items():
+            n, n_diff, worst = sweep_rows.difference(original, r)
+            print(f"  {name:22s} {n_diff} of {n} figures differ, largest relative difference {worst:.2e} "
+                  f"({'within' if worst <= ROWS_LIMIT else 'NOT within'} {ROWS_LIMIT:g})")
 
-    # warm-up: numba kernels loaded and python-control imported outside the timings
-    runner.run_sweep(subset(s, [0, n - 1]), workers=1)
-
-    c0 = cpu_s()
-    r = runner.run_sweep(s, workers=workers)
-    cpu = cpu_s() - c0
-    print(f"batched sweep, {workers} processes: {r.seconds:.1f} s for {n} candidates = {n / r.seconds:.1f} candidates/s "
-          f"({n * V * steps / r.seconds / 1e6:.2f} M loop-steps/s), {cpu:.1f} CPU s; "
-          f"{'within' if r.seconds <= 60 and n >= 1000 else 'NOT within'} 60 s for >= 1000 candidates")
-
-    k = max(1, n // a.baseline)
-    idx = np.arange(0, n, k)[:a.baseline]
-    wall, cpu_b = live_loop_seconds(s, idx, plants, models)
-    base, base_cpu = wall / len(idx), cpu_b / len(idx)
-    print(f"live loop once per candidate (x {V} variants), 1 process: {base:.2f} s per candidate = "
-          f"{1 / base:.2f} candidates/s ({V * steps / base / 1e3:.1f} k loop-steps/s), {base_cpu:.2f} CPU s per "
-          f"candidate, over {len(idx)} candidates")
-    print(f"speed-up per candidate: {base / (r.seconds / n):.0f}x wall ({workers} processes against 1), "
-          f"{base_cpu / (cpu / n):.0f}x CPU (per core)")
+        if a.first_run:
+            cases = [("after install", True)] + ([("nobody precompiled", False)] if a.cold else [])
+            for name, install in cases:
+                tree = copy_checkout(Path(tmp) / name.replace(" ", "_"))
+                extra = ""
+                if install:
+                    extra = f" (the install's precompile before it: {precompile(tree):.1f} s)"
+                s = first_run_s(tree, Path(tmp) / "first.csv")
+                print(f"first run {name}: {s:.2f} s wall{extra}; "
+                      f"{'within' if s <= FIRST_LIMIT_S else 'NOT within'} {FIRST_LIMIT_S:g} s")
 
 
 if __name__ == "__main__":

@@ -76,6 +76,8 @@ def _psi(x, p):
 @njit(cache=True, inline="always")
 def down_scale(x, a, p):
     """Factor of every descending threshold at input ``x``: ``1 + a psi(x)``."""
+    if a == 0.0:  # Eq. (1), without the power (psi is finite: 1 + 0 psi is exactly 1)
+        return 1.0
     return 1.0 + a * _psi(x, p)
 
 

@@ -205,11 +205,11 @@ def test_the_simulated_valve_keeps_time_through_missed_deadlines(cfg, model):
 
 
 def test_batch_closed_loop_matches_the_live_loop(cfg, model):
-    """controller.tuning.closed_loop (arrays of candidates) and the live loop (batch of one) agree step for step."""
+    """The sweep's closed_loop (arrays of candidates) and the live loop (batch of one) agree step for step."""
     import dataclasses
 
     from controller.laws import control, pid
-    from controller.tuning import closed_loop
+    from controller.sweep.simulate import closed_loop
     from plant_sim.plant import BatchPlant, load_plant
 
     def ref(t):

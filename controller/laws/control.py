@@ -213,7 +213,7 @@ def _advance(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_
     k_new = (k_old + 1) % H.shape[1]
     for b in range(X.shape[0]):
         duty, ff, fb = law_step(mode, has_lead, P[b], X[b], bank, b, Y[b], work, H[b], k_old, k_new, ref[b],
-                                meas[b], ref_ff[b], dt)
+                                meas[b], ref_ff[b], dt, True)
         out[b, 0] = duty
         out[b, 1] = ff
         out[b, 2] = fb
@@ -223,13 +223,15 @@ def _advance(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_
 
 
 @njit(cache=True, inline="always")
-def law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref, meas, ref_ff, dt):
+def law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref, meas, ref_ff, dt, split):
     """One candidate, one period: ``(duty, ff, fb)``, %; its state rows advanced in place.
 
     ``p``, ``x``: its rows of :attr:`Kernel.P` and :attr:`ControllerState.x`; ``bank``, ``b``: the
     feedforward's model bank and its index there; ``y``: its forward operator memory; ``work``:
     scratch of the same length; ``hist``: its ring of model flows, ``m[k-1]`` at ``k_old``, ``m[k]``
-    written at ``k_new`` (``ff+kf``).
+    written at ``k_new`` (``ff+kf``). ``split``: whether ``ff`` and ``fb`` are wanted (the live
+    loop's duty split); without it (a sweep needs the duty alone) ``ff+kf`` does not invert the
+    unbiased reference whose only use is the split, and ``ff`` and ``fb`` are not meaningful.
     """
     prev = x[DUTY]
     ff = 0.0
@@ -247,14 +249,15 @@ def law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref, me
         duty = limits.limit(ff, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
         fb = 0.0
     else:  # ff+kf
-        ff = _feedforward(has_lead, p, x, bank, b, y, work, ref_ff, dt)
-        r = x[LEAD_OUT] if has_lead else ref_ff
+        r = _lead(has_lead, p, x, ref_ff, dt)
         m = hist[(k_old - int(p[KF_DELAY])) % hist.shape[0]]
         x[FLOW_EST], x[BIAS_EST] = kalman.correct(p[KF_A], p[KF_GAIN_FLOW], p[KF_GAIN_BIAS], x[FLOW_EST],
                                                   x[BIAS_EST], m, meas)
-        u = ff
-        if r > 0.0:  # a reference of no flow closes the valve whatever the bias estimate says
+        if r > 0.0:
             u = ffw.invert_one(bank, b, y, work, r - x[BIAS_EST])
+            ff = ffw.invert_one(bank, b, y, work, r) if split else u  # the inverses leave the memory as it was
+        else:  # a reference of no flow closes the valve whatever the bias estimate says
+            u = ff = ffw.invert_one(bank, b, y, work, r)
         duty = limits.limit(u, prev, dt, p[DUTY_MIN], p[DUTY_MAX], p[RATE])
         fb = u - ff
     if mode != PID:
@@ -267,15 +270,21 @@ def law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref, me
 
 @njit(cache=True, inline="always")
 def _feedforward(has_lead, p, x, bank, b, memory, work, ref_ff, dt):
-    # F r (the lag inversion, stepped here once per period), then the model's inverse from the
-    # forward memory, which saw the duty actually applied (Eq. 7): a duty the limits cut short
-    # leaves no mismatch behind, and the forward flow m[k] is exactly the flow the inverse aimed at
-    r = ref_ff
-    if has_lead:
-        r = ffw.lead(p[LEAD_S], p[LAG_S], x[LEAD_REF], x[LEAD_OUT], r, dt)
-        x[LEAD_REF] = ref_ff
-        x[LEAD_OUT] = r
-    return ffw.invert_one(bank, b, memory, work, r)
+    # F r, then the model's inverse from the forward memory, which saw the duty actually applied
+    # (Eq. 7): a duty the limits cut short leaves no mismatch behind, and the forward flow m[k] is
+    # exactly the flow the inverse aimed at
+    return ffw.invert_one(bank, b, memory, work, _lead(has_lead, p, x, ref_ff, dt))
+
+
+@njit(cache=True, inline="always")
+def _lead(has_lead, p, x, ref_ff, dt):
+    # F r: the lag inversion, stepped here once per period
+    if not has_lead:
+        return ref_ff
+    r = ffw.lead(p[LEAD_S], p[LAG_S], x[LEAD_REF], x[LEAD_OUT], ref_ff, dt)
+    x[LEAD_REF] = ref_ff
+    x[LEAD_OUT] = r
+    return r
 
 
 def advance(k: Kernel, s: ControllerState, ref_lpm: np.ndarray, meas_lpm: np.ndarray, ref_ff_lpm: np.ndarray,

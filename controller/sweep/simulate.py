@@ -80,7 +80,7 @@ def _run(mode, has_lead, P, method, r, w, a, p_asym, h, g, offset, floor, r_inv,
         for k in range(n):
             k_new = (k_old + 1) % L
             d = control.law_step(mode, has_lead, p, x, bank, b, y, work, hist, k_old, k_new, ref[k], meas,
-                                 ahead[k + preview[b]], dt)[0]
+                                 ahead[k + preview[b]], dt, False)[0]
             if mode == control.FF_KF:
                 k_old = k_new
             flow[b, k] = meas
@@ -164,7 +164,13 @@ def response(params: control.ControllerParams, plants: list, ref_lpm: np.ndarray
     return Response(res.ref_lpm, res.flow_lpm.T, res.true_flow_lpm.T, res.duty_pct.T, 1.0 / rate_hz)
 
 
-def figures(r: Response, n_variants: int) -> dict:
-    """The figures of :data:`controller.sweep.metrics.NAMES`, arrays (C, V)."""
-    f = metrics.tracking_figures(r.ref_lpm, r.flow_lpm, r.duty_pct, r.dt_s, step_flow_lpm=r.true_flow_lpm)
-    return {k: v.reshape(-1, n_variants) for k, v in f.items()}
+def figures(r: Response, n_variants: int, block: int = 64) -> dict:
+    """The figures of :data:`controller.sweep.metrics.NAMES`, arrays (C, V).
+
+    Computed ``block`` loops at a time (every figure is a loop's own): the temporaries of a block
+    stay in the cache, where those of a whole batch (tens of MB each) would stream from memory.
+    """
+    parts = [metrics.tracking_figures(r.ref_lpm, r.flow_lpm[a:a + block], r.duty_pct[a:a + block], r.dt_s,
+                                      step_flow_lpm=r.true_flow_lpm[a:a + block])
+             for a in range(0, r.flow_lpm.shape[0], block)]
+    return {k: np.concatenate([f[k] for f in parts]).reshape(-1, n_variants) for k in metrics.NAMES}

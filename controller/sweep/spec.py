@@ -203,7 +203,10 @@ def _with_default(run, cands: space.Candidates) -> space.Candidates:
 
 def apply(run, word: str, settings: dict):
     """The run configuration of one candidate: controller ``word`` and ``settings`` (``section.key`` -> value)."""
-    sections = copy.deepcopy(run.sections)
+    # a copy of each section (values are numbers, strings and flat lists: copied a level deeper), not
+    # copy.deepcopy: a sweep applies every candidate two or three times, and deepcopy's memo was most of it
+    sections = {sec: {k: (copy.deepcopy(v) if isinstance(v, (list, dict)) else v) for k, v in keys.items()}
+                for sec, keys in run.sections.items()}
     sections[""]["controller"] = word
     for name, value in settings.items():
         sec, _, key = name.rpartition(".")
@@ -211,14 +214,17 @@ def apply(run, word: str, settings: dict):
     return dataclasses.replace(run, sections=sections)
 
 
+def setting(run, settings: dict, name: str):
+    """Setting ``name`` (``section.key``) as :func:`apply` leaves it: the candidate's own, else the run's."""
+    if name in settings:
+        return settings[name]
+    sec, _, key = name.rpartition(".")
+    return run[sec][key]
+
+
 def effective(run, word: str, settings: dict, names) -> dict:
     """Every setting of ``names`` as the candidate has it (its own or the run's), None where irrelevant."""
-    cfg = apply(run, word, settings)
-    out = {}
-    for n in names:
-        sec, _, key = n.rpartition(".")
-        out[n] = cfg[sec][key] if relevant(n, word) else None
-    return out
+    return {n: setting(run, settings, n) if relevant(n, word) else None for n in names}
 
 
 def reference(run, duration_s: float) -> np.ndarray:
