@@ -8,6 +8,7 @@ Prints the figures of issue 16's "Done when" for the default sweep
   same process), best and median over ``--rounds`` fresh processes, alternating this
   checkout and the baseline (``--baseline``, default 7a8da92: main when the sweep's
   speed work of this session began), so both see the same machine; the ratio of the two;
+  also their CPU seconds (process and pool workers), which a busy machine moves less;
 - **rows**: the largest relative difference of every figure against the issue's original
   sweep (:mod:`bench.sweep_rows`: commit 9861ad8, stored rows), for this checkout and for
   the baseline;
@@ -100,6 +101,7 @@ def main() -> None:
     base = baseline_tree(a.baseline)
     original = sweep_rows.load_stored()
     warm = {"this checkout": [], f"baseline {a.baseline}": []}
+    cpu = {k: [] for k in warm}
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(a.rounds):
@@ -107,6 +109,7 @@ def main() -> None:
             for name, tree in order if i % 2 == 0 else order[::-1]:
                 r = sweep_rows.run_in_tree(tree, SWEEP, Path(tmp) / "rows.json", a.workers)
                 warm[name].append(r["seconds"])
+                cpu[name].append(r["cpu_s"])
                 rows.setdefault(name, r)
         print(f"warm sweep seconds over {a.rounds} rounds (load average now {os.getloadavg()[0]:.1f}):")
         for name, xs in warm.items():
@@ -115,6 +118,12 @@ def main() -> None:
         (b_new, m_new), (b_old, m_old) = (stats(xs) for xs in warm.values())
         print(f"  ratio this/baseline: best {b_new / b_old:.2f}, median {m_new / m_old:.2f}; "
               f"{'within' if b_new <= WARM_LIMIT_S else 'NOT within'} {WARM_LIMIT_S:g} s (best)")
+        print("  CPU seconds of the sweep (process and pool workers; moves less than wall time on a busy machine):")
+        for name, xs in cpu.items():
+            best, med = stats(xs)
+            print(f"  {name:22s} best {best:5.2f} s  median {med:5.2f} s")
+        (c_new, _), (c_old, _) = (stats(xs) for xs in cpu.values())
+        print(f"  ratio this/baseline (CPU, best): {c_new / c_old:.2f}")
         print(f"rows against the original sweep (commit {original['commit']}):")
         for name, r in rows.items():
             n, n_diff, worst = sweep_rows.difference(original, r)

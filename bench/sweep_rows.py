@@ -27,20 +27,26 @@ STORED = ROOT / "bench" / "data" / f"sweep_rows_{ORIGINAL}.json.gz"
 
 #: Run in a tree (cwd and PYTHONPATH): ``SWEEP.toml OUT.json WORKERS WARM``. A warm run first (a
 #: two-candidate sweep: kernels loaded, python-control imported), then the timed sweep, its rows
-#: at full precision and its ``seconds`` (the sweep's own figure, as ``valvectl sweep`` reports it).
+#: at full precision, its ``seconds`` (the sweep's own figure, as ``valvectl sweep`` reports it) and the
+#: CPU seconds of the process and its pool workers over the sweep.
 SCRIPT = """
-import dataclasses, json, math, sys
+import dataclasses, json, math, resource, sys
 from controller.sweep import runner, spec
 s = spec.load_sweep(sys.argv[1])
 workers, warm = int(sys.argv[3]), sys.argv[4] == "1"
 if warm:
     runner.run_sweep(dataclasses.replace(s, candidates=s.candidates.take([0, len(s.candidates) - 1]), margins_top=0),
                      workers=1)
+def cpu_s():
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+c0 = cpu_s()
 r = runner.run_sweep(s, workers=workers)
+cpu = cpu_s() - c0
 def cell(v):
     return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
 table = {c: [cell(v if isinstance(v, str) or v is None else float(v)) for v in r.table[c]] for c in r.columns}
-json.dump({"columns": r.columns, "table": table, "seconds": r.seconds}, open(sys.argv[2], "w"))
+json.dump({"columns": r.columns, "table": table, "seconds": r.seconds, "cpu_s": cpu}, open(sys.argv[2], "w"))
 """
 
 

@@ -21,6 +21,8 @@ from . import metrics, simulate, spec as sp
 from .distributed import default_workers, map_chunks
 
 MARGIN_NAMES = ("gain_margin_db", "phase_margin_deg")
+#: Batches per pool worker at least (when ``chunk_loops`` allows): the last ones are small.
+CHUNKS_PER_WORKER = 8
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,8 @@ def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, sche
     run, cands = s.run, s.candidates
     rate = run["loop"]["rate_hz"]
     pairs = [(cands.controller[i], cands.row(i)) for i in range(len(cands))]
-    n_blocks = max(1, min(len(pairs), 4 * (workers or default_workers())))
+    n_workers = workers or default_workers()
+    n_blocks = max(1, min(len(pairs), 4 * n_workers))
     bounds = np.linspace(0, len(pairs), n_blocks + 1).astype(int)
     blocks = [Build(run, pairs[a:b], models) for a, b in zip(bounds[:-1], bounds[1:])]
     built = [x for part in map_chunks(build_many, blocks, [len(b.rows) for b in blocks], scheduler, workers,
@@ -132,7 +135,9 @@ def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, sche
     groups = {}
     for i, (p, _) in enumerate(built):
         groups.setdefault(structure(p), []).append(i)
-    per = max(1, s.chunk_loops // len(plants))
+    # at most chunk_loops loops a batch, and enough batches that the pool's workers finish together
+    # (a word's loop costs up to 4x another's: few large batches leave one worker running alone)
+    per = max(1, min(s.chunk_loops // len(plants), math.ceil(len(built) / (CHUNKS_PER_WORKER * n_workers))))
     parts = [idx[a:a + per] for idx in groups.values() for a in range(0, len(idx), per)]
     parts.sort(key=len, reverse=True)  # largest first: the pool's workers finish together
     chunks = [Chunk([built[i][0] for i in part], plants, ref, rate,
