@@ -203,10 +203,10 @@ def _with_default(run, cands: space.Candidates) -> space.Candidates:
 
 def apply(run, word: str, settings: dict):
     """The run configuration of one candidate: controller ``word`` and ``settings`` (``section.key`` -> value)."""
-    # a copy of each section (values are numbers, strings and flat lists: copied a level deeper), not
-    # copy.deepcopy: a sweep applies every candidate two or three times, and deepcopy's memo was most of it
-    sections = {sec: {k: (copy.deepcopy(v) if isinstance(v, (list, dict)) else v) for k, v in keys.items()}
-                for sec, keys in run.sections.items()}
+    # the sections it changes copied, the others shared with the run (read only; copy.deepcopy of the
+    # whole configuration was most of the cost of building a candidate)
+    changed = {""} | {name.rpartition(".")[0] for name in settings}
+    sections = {sec: dict(keys) if sec in changed else keys for sec, keys in run.sections.items()}
     sections[""]["controller"] = word
     for name, value in settings.items():
         sec, _, key = name.rpartition(".")
