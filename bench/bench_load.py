@@ -239,7 +239,7 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
     s = json.load(open(summ))
     n = json.load(open(nj)) if os.path.exists(nj) else node_line(n_out)
     rt_us = n.get("round_trip_us", {})
-    row = {"case": name, "steps": s["steps"], "overruns": s["overruns"],
+    row = {"case": name, "pids": {"controller": ctrl.pid, "node": node.pid}, "steps": s["steps"], "overruns": s["overruns"],
            "overrun_pct": 100.0 * s["overruns"] / max(1, s["steps"] + s["overruns"]),
            "stale": stale_during(rec, duration), "node_steps": n.get("steps"), "node_overruns": n.get("overruns"),
            "fresh_cmd_pct": 100.0 * n["commands"] / n["steps"] if n.get("steps") else None,
