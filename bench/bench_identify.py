@@ -12,16 +12,21 @@ and its 0.5 L/min sensor noise) and each protocol duration:
 4. the run configuration it wrote, against the twin simulated in-process at
    exactly its rate (``sim``): IAE of each controller word with its gains
    against the sweep-tuned ``pid``, what the identification is worth without
-   the missed periods of a loaded machine;
+   the missed periods of a loaded machine; and ``true``: ``ff+kf`` with the
+   same gains but the twin's own model, lag and delay as its feedforward
+   (the gap from ``ff+kf`` to ``true`` is the identification's, the rest the
+   controller's and the noise's);
 5. ``valvectl run --plant zenoh --config DIR/run.toml`` against a fresh node:
    steady MAE and IAE of the run's controller and of ``ff+kf``, and of ``pid``
    as the baseline measured in the same run: the PID the same sweep tuned
    (``IAE/pid``, same run configuration, same variants) and the twin's own
-   ``run.toml`` PID gains (untuned for it, ``/shipped``).
+   ``run.toml`` PID gains (untuned for it, ``/shipped``); :data:`ROUNDS`
+   interleaved runs each, IAE averaged.
 
 Prints one table. Usage::
 
     python bench/bench_identify.py [--twin pvp bench] [--duration 600 300 120] [--out DIR]
+                                   [--tau-ms 15] [--delay-ms 10] [--noise L/min]
 """
 from __future__ import annotations
 
@@ -49,9 +54,19 @@ from plant_sim.plant import Plant, load_plant  # noqa: E402
 from tests.zenoh_helpers import free_port  # noqa: E402
 
 TAU_S, DELAY_S = 0.015, 0.010
+NOISE_LPM = None  # the twin's own sensor noise (--noise changes it)
 RUN_S = 20.0
+#: Closed-loop runs over Zenoh per controller, interleaved (IAE averaged).
+ROUNDS = 2
 #: Identifications run again after a safe stop (a stall of the shared machine longer than stale_ms).
 RETRIES = 2
+
+
+def twin_model(plant_toml: str) -> str:
+    """The absolute path of the model file a plant.toml runs."""
+    from models.tomlfile import read_toml
+
+    return os.path.join(os.path.dirname(os.path.abspath(plant_toml)), read_toml(plant_toml)["model"])
 
 
 def twin_config(name: str, folder: str) -> str:
@@ -59,10 +74,20 @@ def twin_config(name: str, folder: str) -> str:
     base = load_run_config(os.path.join(ROOT, "config", "valves", name, "run.toml"))
     s = copy.deepcopy(base.sections)
     s["effects"] = {"valve_dynamics": TAU_S, "transport_delay": DELAY_S}
+    if NOISE_LPM is not None:  # the twin's plant.toml with another sensor noise
+        plant = os.path.join(folder, "plant.toml")
+        src = base.resolve(base[""]["plant_config"])
+        with open(src) as fh:
+            text = fh.read()
+        text = "\n".join(f"model = {json.dumps(twin_model(src))}" if ln.startswith("model") else
+                         (f"noise_lpm = {NOISE_LPM!r}" if ln.startswith("noise_lpm") else ln) for ln in text.splitlines())
+        with open(plant, "w") as fh:
+            fh.write(text + "\n")
+        s[""]["plant_config"] = plant
     s["loop"]["rt_priority"] = 0
     # A shared 2-core machine (load 15-25 while this ran) stalls processes for hundreds of ms and a node may
     # take long to start; each stall past the node's command timeout closes the valve and wipes its memory.
-    s["identify"].update(stale_ms=5000.0, wait_s=120.0, tune_candidates=60)
+    s["identify"].update(stale_ms=5000.0, wait_s=120.0)
     s["valve_node"]["command_timeout_ms"] = 1000.0
     path = os.path.join(folder, f"twin_{name}.toml")
     write_run_config(dataclasses.replace(base, sections=s), path)
@@ -149,15 +174,20 @@ def simulated_closed_loop(cfg_path: str, out: str) -> dict:
     write_run_config(dataclasses.replace(run, sections=s), os.path.join(folder, "run.toml"))
     gains = json.load(open(os.path.join(out, "identify.json")))["gains"]
     lines = ['run = "run.toml"', f"duration_s = {RUN_S!r}", 'objective = "iae"', "margins_top = 0", "", "[[variants]]"]
-    for word, params in gains.items():
+    # the twin's own model, lag and delay as ff+kf's feedforward, with the identified gains: what is left
+    # between this and the identified ff+kf is the identification's; between this and the floor, the controller's
+    true = {"model": twin_model(twin.resolve(twin[""]["plant_config"])),
+            "valve.tau_s": twin["effects"]["valve_dynamics"], "valve.delay_s": twin["effects"]["transport_delay"]}
+    for word, params in [*gains.items(), ("ff+kf", {**gains["ff+kf"], **true})]:
         lines += ["", "[[candidates]]", f'controller = "{word}"', 'sample = "grid"']
-        lines += [f"{k} = [{v!r}]" for k, v in params.items() if k != "controller"]
+        lines += [f"{k} = [{json.dumps(v)}]" for k, v in params.items() if k != "controller"]
     with open(os.path.join(folder, "sweep.toml"), "w") as fh:
         fh.write("\n".join(lines) + "\n")
     res = runner.run_sweep(load_sweep(os.path.join(folder, "sweep.toml")), None, 1)
     t = res.table
-    return {t["controller"][i]: {"iae": float(t["iae"][i]), "steady_mae_lpm": float(t["steady_mae_lpm"][i])}
-            for i in range(1, len(t["controller"]))}
+    words = [*gains, "ff+kf true model"]
+    return {w: {"iae": float(t["iae"][i]), "steady_mae_lpm": float(t["steady_mae_lpm"][i])}
+            for w, i in zip(words, range(1, len(t["controller"])))}
 
 
 def closed_loop(cfg: str, run_toml: str, out: str, word: str | None) -> dict:
@@ -210,19 +240,29 @@ def one(name: str, duration: float, root: str) -> dict:
            "id_overruns": summ["overruns"], "steps_read": summ["dynamics"]["steps"],
            "steps_disturbed": summ["dynamics"]["steps_disturbed"]}
     run_toml = os.path.join(out, "run.toml")
-    best = closed_loop(cfg, run_toml, folder, None)
-    pid = closed_loop(cfg, run_toml, folder, "pid")
-    ffkf = best if summ["controller"] == "ff+kf" else closed_loop(cfg, run_toml, folder, "ff+kf")
-    shipped = closed_loop(cfg, cfg, folder, "pid")  # the twin's own run.toml gains: the untuned baseline
-    row.update(steady_mae=best["tracking"]["steady_mae_lpm"], iae=best["tracking"]["iae"],
-               iae_pid=pid["tracking"]["iae"], steady_mae_pid=pid["tracking"]["steady_mae_lpm"],
-               iae_ffkf=ffkf["tracking"]["iae"], steady_mae_ffkf=ffkf["tracking"]["steady_mae_lpm"],
-               iae_pid_shipped=shipped["tracking"]["iae"], faults=[f["kind"] for f in best["faults"]],
-               overruns=best["overruns"], overruns_pid=pid["overruns"], load1=os.getloadavg()[0])
+    runs: dict = {}
+    for _ in range(ROUNDS):  # interleaved, so the words and the baseline share the machine's load
+        for tag, word, toml in (("best", None, run_toml), ("pid", "pid", run_toml), ("ff+kf", "ff+kf", run_toml),
+                                ("shipped", "pid", cfg)):  # shipped: the twin's own run.toml gains, untuned for it
+            if tag == "ff+kf" and summ["controller"] == "ff+kf":
+                continue
+            runs.setdefault(tag, []).append(closed_loop(cfg, toml, folder, word))
+    runs.setdefault("ff+kf", runs["best"])
+
+    def mean(tag, key):
+        return float(np.mean([r["tracking"][key] for r in runs[tag]]))
+
+    row.update(steady_mae=mean("best", "steady_mae_lpm"), iae=mean("best", "iae"), iae_pid=mean("pid", "iae"),
+               steady_mae_pid=mean("pid", "steady_mae_lpm"), iae_ffkf=mean("ff+kf", "iae"),
+               steady_mae_ffkf=mean("ff+kf", "steady_mae_lpm"), iae_pid_shipped=mean("shipped", "iae"),
+               faults=sorted({f["kind"] for r in runs["best"] for f in r["faults"]}),
+               overruns=sum(r["overruns"] for r in runs["best"]), overruns_pid=sum(r["overruns"] for r in runs["pid"]),
+               load1=os.getloadavg()[0])
     sim = simulated_closed_loop(cfg, out)
     row.update(sim_iae={w: v["iae"] for w, v in sim.items()}, sim_steady_mae={w: v["steady_mae_lpm"] for w, v in sim.items()})
     row["sim_iae_ratio"] = sim[summ["controller"]]["iae"] / sim["pid"]["iae"]
     row["sim_iae_ratio_ffkf"] = sim["ff+kf"]["iae"] / sim["pid"]["iae"]
+    row["sim_iae_ratio_true"] = sim["ff+kf true model"]["iae"] / sim["pid"]["iae"]
     row["iae_ratio"] = row["iae"] / row["iae_pid"]
     row["iae_ratio_ffkf"] = row["iae_ffkf"] / row["iae_pid"]
     row["iae_ratio_shipped"] = row["iae"] / row["iae_pid_shipped"]
@@ -236,7 +276,12 @@ def main() -> None:
     ap.add_argument("--twin", nargs="+", default=["pvp", "bench"])
     ap.add_argument("--duration", nargs="+", type=float, default=[600.0])
     ap.add_argument("--out", default="/tmp/bench_identify")
+    ap.add_argument("--tau-ms", type=float, default=TAU_S * 1e3, help="the twin's lag")
+    ap.add_argument("--delay-ms", type=float, default=DELAY_S * 1e3, help="the twin's delay")
+    ap.add_argument("--noise", type=float, default=None, help="the twin's sensor noise, L/min (default: its own)")
     a = ap.parse_args()
+    global TAU_S, DELAY_S, NOISE_LPM
+    TAU_S, DELAY_S, NOISE_LPM = a.tau_ms * 1e-3, a.delay_ms * 1e-3, a.noise
     rows = []
     for name in a.twin:
         for d in a.duration:
@@ -244,12 +289,14 @@ def main() -> None:
             rows.append(r)
             print(json.dumps(r), flush=True)
     print(f"\n{'twin':<6}{'dur s':>7}{'model':>9}{'tau ms':>8}{'err':>7}{'delay ms':>9}{'err':>7}{'held-out':>9}"
-          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'ff+kf':>7}{'st.MAE':>8}{'/shipped':>9}{'sim':>6}{'ff+kf':>7}")
+          f"{'ctrl':>8}{'st.MAE':>8}{'IAE/pid':>8}{'ff+kf':>7}{'st.MAE':>8}{'/shipped':>9}{'sim':>6}{'ff+kf':>7}"
+          f"{'true':>6}")
     for r in rows:
         print(f"{r['twin']:<6}{r['duration_s']:7.0f}{r['model']:>9}{r['tau_ms']:8.2f}{r['tau_err']:7.1%}"
               f"{r['delay_ms']:9.2f}{r['delay_err']:7.1%}{r['held_out_rmse']:9.2f}{r['controller']:>8}"
               f"{r['steady_mae']:8.2f}{r['iae_ratio']:8.2f}{r['iae_ratio_ffkf']:7.2f}{r['steady_mae_ffkf']:8.2f}"
-              f"{r['iae_ratio_shipped']:9.2f}{r['sim_iae_ratio']:6.2f}{r['sim_iae_ratio_ffkf']:7.2f}")
+              f"{r['iae_ratio_shipped']:9.2f}{r['sim_iae_ratio']:6.2f}{r['sim_iae_ratio_ffkf']:7.2f}"
+              f"{r['sim_iae_ratio_true']:6.2f}")
 
 
 if __name__ == "__main__":

@@ -83,6 +83,7 @@ class Valve(_Section):
 class Feedforward(_Section):
     lead_lag_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.005
     preview: bool = True
+    anticipation_s: Seconds10 = 0.0       # with preview: read this much further ahead than the delay
     ready_margin_pct: Percent = 2.0       # no flow asked: this far below the present cracking duty
 
 
@@ -328,5 +329,14 @@ def supervisor(cfg: RunConfig, word: str, model):
 
 
 def preview_s(cfg: RunConfig, reference: str) -> float:
-    """How far ahead the feedforward reads the reference: the valve's delay for a known profile, else 0."""
-    return cfg["valve"]["delay_s"] if (reference == "profile" and cfg["feedforward"]["preview"]) else 0.0
+    """How far ahead the feedforward reads the reference: for a known profile the valve's delay plus
+    ``[feedforward] anticipation_s``, else 0.
+
+    The delay alone puts the model's flow on the reference on time, but the valve's lag still trails
+    each edge (the lag inversion is bounded; a closing valve's flow decays with the lag whatever the duty);
+    the IAE of a first-order decay is least when it starts ``tau ln 2`` early, so reading further ahead
+    trades a little error before each edge for more after it.
+    """
+    if reference != "profile" or not cfg["feedforward"]["preview"]:
+        return 0.0
+    return cfg["valve"]["delay_s"] + cfg["feedforward"]["anticipation_s"]

@@ -206,3 +206,38 @@ def test_stale_measurement_and_stop_abort():
     res = run_session(Program(ProtocolParams(duration_s=30.0, rate_hz=RATE)), SimTransport(twin()),
                       Safety(safe_duty_pct=5.0), RATE, SimClock(), stop=lambda: calls.append(1) or len(calls) > 2000)
     assert res.reason == "interrupted" and res.steps == 2001 and res.columns["duty_pct"][-1] == 5.0
+
+
+def test_reading_the_profile_ahead_by_tau_ln2_lowers_the_iae_of_a_lagged_valve():
+    # the feedforward's own model as the valve (exact inverse), behind a lag and a delay, no noise: what is
+    # left of the IAE is the lag trailing each edge. A first-order decay starting x early costs
+    # x - tau + 2 tau exp(-x / tau) (x flow-normalized), least at x = tau ln 2, so reading the profile that much
+    # beyond the delay beats the delay alone, and far beyond it is worse again.
+    import copy
+    import dataclasses
+
+    from controller.config import load_run_config, preview_s
+    from controller.sweep import runner, simulate
+    from controller.sweep import spec as sp
+    from models.model import load_model
+
+    tau, delay = 0.02, 0.01
+    run = load_run_config("config/run.toml")
+    s = copy.deepcopy(run.sections)
+    s["valve"].update(tau_s=tau, delay_s=delay)
+    s["profile"].update(breath_rate_bpm=60.0)
+    ref = sp.reference(dataclasses.replace(run, sections=s), 2.0)
+    model = load_model(run.resolve(run[""]["model"]))
+    plant = sp.plants(run, [{}], "test")[0].replace(model=model, noise_lpm=0.0, valve_dynamics=tau,
+                                                     transport_delay=delay)
+    built, steps = [], []
+    for extra in (0.0, tau * math.log(2.0), 3 * tau):
+        s["feedforward"]["anticipation_s"] = extra
+        cfg = dataclasses.replace(run, sections=copy.deepcopy(s))
+        p, pv = runner.build_one(cfg, "ff", {}, {run.resolve(run[""]["model"]): model})
+        assert pv == pytest.approx(delay + extra) and preview_s(cfg, "zenoh") == 0.0
+        built.append(p)
+        steps.append(int(round(pv * RATE)))
+    r = simulate.response(simulate.stack_params(built), [plant], ref, RATE, 0, np.array(steps))
+    iae = np.sum(np.abs(r.true_flow_lpm - r.ref_lpm), axis=1) * r.dt_s / 60.0
+    assert iae[1] < 0.9 * iae[0] and iae[1] < iae[2]

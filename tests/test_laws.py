@@ -288,3 +288,19 @@ def test_stacked_banks_step_like_each_model_alone():
             assert u2[j] == ffw.invert(b, s1[j], np.array([100.0]))[0]
             s1[j], q1 = ffw.step(b, s1[j], np.array([d]))
             assert q2[j] == q1[0]
+
+
+def test_kalman_holds_its_bias_while_the_model_has_the_valve_closed():
+    """A closed valve says nothing of the model's error on an open one: the bias learnt on one breath is
+    kept through the expiration for the next; the flow estimate follows the closed valve to zero."""
+    kp = kalman.KFParams.make(0.02, 0.005, DT, 0.5, 0.05, 0.5)
+    s = kalman.init(kp, 70.0, model0_lpm=60.0, bias0_lpm=10.0)
+    d = int(kp.delay_steps[0])
+    bias = []
+    for _ in range(500):  # the model closes the valve (seen d + 1 periods later), and the valve closes
+        s = kalman.push(kalman.update(kp, s, np.array([0.0])), np.array([0.0]))
+        bias.append(s.bias_lpm[0])
+    assert len(set(bias[d + 1:])) == 1 and bias[d] != bias[0] and abs(s.flow_lpm[0]) < 0.01
+    for _ in range(d + 2):  # open again: the measurement moves the bias once the model's flow arrives
+        s = kalman.push(kalman.update(kp, s, np.array([70.0])), np.array([60.0]))
+    assert s.bias_lpm[0] > bias[-1]

@@ -65,20 +65,21 @@ def test_pid_transfer_function_is_the_law():
 
 
 def test_kalman_state_space_is_the_filter_around_a_linear_feedforward():
-    """The ff+kf controller: the filter's bias estimate through u = -bias/K, m = K u, against kalman.update/push."""
+    """The ff+kf controller: the filter's bias estimate through u = -bias/K, m = K u, against kalman.update/push
+    (about an open valve at m0: the filter holds its bias while the model has the valve closed)."""
     import control as ct
 
     kf = kalman.KFParams.make(0.02, 0.003, DT, 0.3, 0.05, 0.5)
-    k_model = 1.7
+    k_model, m0 = 1.7, 60.0
     c = MG._kalman_lti(kf, 0, k_model, DT)
     rng = np.random.default_rng(4)
     z = rng.normal(0, 1, 200)
-    s = kalman.init(kf, 0.0, model0_lpm=0.0)
+    s = kalman.init(kf, m0, model0_lpm=m0)
     law = []
     for zk in z:
-        s = kalman.update(kf, s, np.array([zk]))
+        s = kalman.update(kf, s, np.array([m0 + zk]))
         u = -s.bias_lpm / k_model
-        s = kalman.push(s, k_model * u)
+        s = kalman.push(s, m0 + k_model * u)
         law.append(-u[0])
     _, y = ct.forced_response(c, T=np.arange(200) * DT, U=z)
     np.testing.assert_allclose(y, law, rtol=1e-9, atol=1e-12)

@@ -38,6 +38,11 @@ SWEEP_CANDIDATES = {
     "ff+kf": (80, {"kf.q_flow_lpm": {"log": [0.3, 30.0]}, "kf.q_bias_lpm": {"log": [0.002, 0.5]}}),
 }
 SWEEP_DURATION_S = 6.0
+#: The feedforward words also sample how far beyond the delay their feedforward reads the profile
+#: (``feedforward.anticipation_s``), uniform in [0, this x the identified lag]: the IAE of a first-order
+#: edge is least when it starts ``tau ln 2`` early (a closing valve's flow decays with the lag whatever the
+#: duty; an opening one is sped up by the lag inversion, so it wants less).
+ANTICIPATION_TAUS = 1.0
 #: With no flow asked, the identified run parks the valve this share of its working range below the model's
 #: onset of flow ([feedforward] ready_margin_pct). Where a minor loop's descending branch closes is what the
 #: identification sees least (its excitation stays above the cracking duty; the bench twin, descending from
@@ -147,6 +152,8 @@ def sweep_text(tau_s: float, delay_s: float, seed: int, candidates: int = 200, a
                   f"model = {_toml(alt_model)}"]
     for word, (n, ranges) in SWEEP_CANDIDATES.items():
         lines += ["", "[[candidates]]", f'controller = "{word}"', f"sample = {max(4, round(n * candidates / 200))}"]
+        if word.startswith("ff"):
+            ranges = {**ranges, "feedforward.anticipation_s": {"uniform": [0.0, ANTICIPATION_TAUS * tau_s]}}
         for k, (kind, (lo, hi)) in ((k, next(iter(v.items()))) for k, v in ranges.items()):
             lines.append(f"{k} = {{{kind} = [{lo!r}, {hi!r}]}}")
     return "\n".join(lines) + "\n"

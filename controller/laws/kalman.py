@@ -119,16 +119,25 @@ def init(p: KFParams, flow0_lpm, model0_lpm=None, bias0_lpm=0.0) -> KFState:
 
 @njit(cache=True, inline="always")
 def prediction(a, flow_lpm, bias_lpm, model_lpm):
-    """One candidate's flow predicted for this step from the delayed model flow ``m[k-1-d]``, L/min."""
-    return a * flow_lpm + (1.0 - a) * (model_lpm + bias_lpm)
+    """One candidate's flow predicted for this step from the delayed model flow ``m[k-1-d]``, L/min.
+
+    The bias is the model's error on flow the valve passes: where the model has the valve closed
+    (``m = 0``) the valve passes none whatever the bias.
+    """
+    return a * flow_lpm + (1.0 - a) * (model_lpm + bias_lpm if model_lpm > 0.0 else 0.0)
 
 
 @njit(cache=True, inline="always")
 def correct(a, k_flow, k_bias, flow_lpm, bias_lpm, model_lpm, z_lpm):
-    """One candidate: predict with ``m[k-1-d]``, correct with the measurement ``z[k]``; ``(flow, bias)``."""
+    """One candidate: predict with ``m[k-1-d]``, correct with the measurement ``z[k]``; ``(flow, bias)``.
+
+    While the model has the valve closed the bias estimate is held: a closed valve says nothing about
+    the model's error on an open one, and learning it anew on every breath costs each breath's start
+    (a hysteresis model's error persists from breath to breath where its branch is wrong).
+    """
     flow_pred = prediction(a, flow_lpm, bias_lpm, model_lpm)
     innov = z_lpm - flow_pred
-    return flow_pred + k_flow * innov, bias_lpm + k_bias * innov
+    return flow_pred + k_flow * innov, bias_lpm + (k_bias * innov if model_lpm > 0.0 else 0.0)
 
 
 def delayed_model(p: KFParams, s: KFState) -> np.ndarray:
