@@ -272,6 +272,7 @@ def one(name: str, duration: float, root: str) -> dict:
 
 
 def main() -> None:
+    global TAU_S, DELAY_S, NOISE_LPM
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--twin", nargs="+", default=["pvp", "bench"])
     ap.add_argument("--duration", nargs="+", type=float, default=[600.0])
@@ -280,7 +281,6 @@ def main() -> None:
     ap.add_argument("--delay-ms", type=float, default=DELAY_S * 1e3, help="the twin's delay")
     ap.add_argument("--noise", type=float, default=None, help="the twin's sensor noise, L/min (default: its own)")
     a = ap.parse_args()
-    global TAU_S, DELAY_S, NOISE_LPM
     TAU_S, DELAY_S, NOISE_LPM = a.tau_ms * 1e-3, a.delay_ms * 1e-3, a.noise
     rows = []
     for name in a.twin:
