@@ -87,6 +87,28 @@ def delayed(x: np.ndarray, rate_hz: float, delay_s: float) -> np.ndarray:
     return (1.0 - frac) * x[i0] + frac * x[i1]
 
 
+def advanced(x: np.ndarray, rate_hz: float, delay_s: float) -> np.ndarray:
+    """``x(t + delay)``, the inverse of :func:`delayed` (the last value held past the end)."""
+    return delayed(np.asarray(x)[::-1], rate_hz, delay_s)[::-1]
+
+
+def lag_input(y: np.ndarray, rate_hz: float, tau_s: float, phase: float = 1.0) -> np.ndarray:
+    """The input of :func:`first_order_lag` recovered from its output (a one-step inverse).
+
+    ``(y[k] - a y[k-1]) / (1 - a)`` is the input's update ``(1 - phase) x[k] + phase x[k-1]``, and
+    is returned ``round(phase)`` samples earlier, aligned with ``x``; the last value is held. It
+    amplifies white noise on ``y`` by ``sqrt(1 + a^2) / (1 - a)``.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    if tau_s <= 0 or len(y) < 2:
+        return y.copy()
+    a = np.exp(-1.0 / (rate_hz * tau_s))
+    u = np.concatenate([y[:1], (y[1:] - a * y[:-1]) / (1.0 - a)])
+    if round(phase) >= 1:
+        u = np.concatenate([u[1:], u[-1:]])
+    return u
+
+
 def coil_temperature_rise(duty_pct: np.ndarray, rate_hz: float, tau_s: float, rise55_k: float,
                           t0_k: float | None = None) -> np.ndarray:
     """Coil temperature rise above ambient (K), a first-order thermal state.

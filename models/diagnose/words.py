@@ -23,6 +23,7 @@ import numpy as np
 
 from . import effects as fx
 from .residuals import branch
+from . import signals
 from .signals import Signals
 
 
@@ -141,6 +142,11 @@ class Word:
     def dynamics(self, v: np.ndarray, rate_hz: float, params: dict) -> np.ndarray:
         """The flow (or every column) through the word's time response."""
         return v
+
+    def undo(self, y: np.ndarray, rate_hz: float, params: dict) -> np.ndarray:
+        """The flow before the word's time response, recovered from the flow after it (the inverse
+        of :meth:`dynamics`; noisier than its input)."""
+        return y
 
     def sensor_columns(self, ctx: Columns, params: dict) -> list:
         """Linear columns at the sensor, after the dynamics."""
@@ -357,6 +363,9 @@ class ValveDynamics(Word):
     def dynamics(self, v, rate_hz, params):
         return fx.first_order_lag(v, rate_hz, params["tau_s"], phase=params.get("phase", 1.0))
 
+    def undo(self, y, rate_hz, params):
+        return fx.lag_input(y, rate_hz, params["tau_s"], params.get("phase", 1.0))
+
 
 @dataclass(frozen=True)
 class TransportDelay(Word):
@@ -368,6 +377,9 @@ class TransportDelay(Word):
     def dynamics(self, v, rate_hz, params):
         return fx.delayed(v, rate_hz, params["delay_s"])
 
+    def undo(self, y, rate_hz, params):
+        return fx.advanced(y, rate_hz, params["delay_s"])
+
 
 @dataclass(frozen=True)
 class DeadZone(Word):
@@ -376,10 +388,11 @@ class DeadZone(Word):
     def grid(self, sig, base):
         # cracking duties just above the lowest duty and the low duty quantiles (each masks the rows
         # at or below one of them, so a held level right at the cracking duty is either shut or open,
-        # not both), and evenly over the lower 60 % of the duty span (a recording that rests at one
-        # low level, as a ventilator's expiration does, has all its low quantiles at that level)
+        # not both), and evenly over the lower 80 % of the duty span (a recording that rests at one
+        # low level, as a ventilator's expiration does, has all its low quantiles at that level; a
+        # gross dead zone shuts the valve over most of the holds of a random excitation)
         q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
-        span = np.linspace(q[0], q[0] + 0.6 * np.ptp(sig.duty_pct), 61)
+        span = np.linspace(q[0], q[0] + 0.8 * np.ptp(sig.duty_pct), 81)
         c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
         return {"cracking_pct": c[c <= self.plausible["cracking_pct"][1]]}
 
@@ -407,10 +420,7 @@ class DeadZone(Word):
         # with a jump there: a cracking duty holds the valve shut until the flow it would pass is
         # well above zero, where a valve closing by itself (a fitted PI smooths its kink) comes to
         # zero flow continuously
-        band = (opened >= 0.98) & (sig.duty_pct > params["cracking_pct"]) & \
-            (sig.duty_pct <= params["cracking_pct"] + JUMP_BAND_PCT)
-        jumps = band.sum() >= MIN_END_ROWS and \
-            float(np.median(sig.flow_lpm[band])) - float(np.median(sig.flow_lpm[shut])) > lim
+        jumps = self._jumps(sig, params, chain or {})
         for rows in (shut, shut & (np.abs(before_lpm) > lim) & jumps):
             if rows.sum() < MIN_END_ROWS:
                 continue
@@ -422,6 +432,24 @@ class DeadZone(Word):
             return (f"the flow does not stop below the cracking duty {params['cracking_pct']:.3g} %: median "
                     f"{q:.3g} L/min there (zero within {lim:.3g} L/min needed)")
         return "the model before it already predicts no flow below the cracking duty"
+
+    def _jumps(self, sig: Signals, params: dict, chain: dict) -> bool:
+        """Whether the flow at the valve jumps open just above the cracking duty.
+
+        Judged at the valve, the measured flow taken back through the time response of the
+        chain (a lag smooths the jump over several samples, through which a breath's duty has
+        long passed the band above the cracking duty), against that flow's own noise.
+        """
+        q = sig.flow_lpm
+        for w, p in reversed(list(chain.items())):
+            q = VOCABULARY[w].undo(q, sig.rate_hz, p)
+        c = params["cracking_pct"]
+        band = (sig.duty_pct > c) & (sig.duty_pct <= c + JUMP_BAND_PCT)
+        shut = sig.duty_pct <= c
+        if band.sum() < MIN_END_ROWS or shut.sum() < MIN_END_ROWS:
+            return False
+        lim = 3.0 * signals.noise_lpm(q) + 0.01 * float(np.ptp(sig.flow_lpm))
+        return float(np.median(q[band])) - float(np.median(q[shut])) > lim
 
 
 @dataclass(frozen=True)
