@@ -201,8 +201,8 @@ def test_gross_dead_zone_is_named_at_its_cracking_duty():
     assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=0.5)
 
 
-def _named(effects: dict, protocol: str) -> dict:
-    d = diagnose_response(_plant_recording(effects, protocol, 300.0))
+def _named(effects: dict, protocol: str, seed: int = 3) -> dict:
+    d = diagnose_response(_plant_recording(effects, protocol, 300.0, seed))
     named = {f.effect: f for f in d.findings}
     # exactly the injected words (a lag may be named with a delay as the alternative it cannot be told from)
     assert {w for w, f in named.items() if f.alternative_to is None} == set(effects)
@@ -216,6 +216,22 @@ def test_gross_dead_zone_on_breaths():
     # a 45 % cracking duty on breaths that rest at 30 %: every breath opens late and shuts early
     named = _named({"dead_zone": 45.0}, "breaths")
     assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=1.0)
+
+
+@pytest.mark.slow
+def test_gross_dead_zone_behind_a_lag_on_breaths():
+    # a 44 % cracking duty behind a 50 ms lag: the jump at the cracking duty is judged at the valve
+    named = _named({"dead_zone": 44.0, "valve_dynamics": 0.05}, "breaths", seed=5)
+    assert named["dead_zone"].params["cracking_pct"] == pytest.approx(44.0, abs=1.0)
+    assert named["valve_dynamics"].params["tau_s"] == pytest.approx(0.05, rel=0.2)
+
+
+@pytest.mark.slow
+def test_gross_heating_with_asymmetry():
+    # each refined once more with the other in place: neither takes up part of the other
+    named = _named({"coil_heating": 30.0, "asymmetric_hysteresis": 1.0}, "paper_identification", seed=5)
+    assert named["coil_heating"].params["rise55_k"] == pytest.approx(30.0, rel=0.25)
+    assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(1.0, rel=0.3)
 
 
 @pytest.mark.slow

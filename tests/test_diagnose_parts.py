@@ -55,6 +55,35 @@ def test_delay_integer_and_fractional():
     assert fx.delayed(x, 10.0, 0.3)[0] == x[0]
 
 
+@given(tau=st.floats(0.005, 0.5), phase=st.sampled_from([0.0, 1.0]), seed=st.integers(0, 1000))
+@settings(max_examples=20, deadline=None)
+def test_lag_input_inverts_the_lag(tau, phase, seed):
+    # sampled with the command held (phase 1) the output's update is the previous input, with phase 0 its own
+    x = np.random.default_rng(seed).normal(size=400).cumsum()
+    y = fx.first_order_lag(x, 100.0, tau, phase=phase)
+    np.testing.assert_allclose(fx.lag_input(y, 100.0, tau, phase)[1:-1], x[1:-1], rtol=1e-6, atol=1e-6 * np.ptp(x))
+
+
+def test_advanced_undoes_a_whole_sample_delay():
+    x = np.arange(20.0) ** 2
+    np.testing.assert_allclose(fx.advanced(fx.delayed(x, 10.0, 0.3), 10.0, 0.3)[:-3], x[:-3])
+    assert fx.advanced(x, 10.0, 0.3)[-1] == x[-1]  # the last value held past the end
+
+
+def test_censored_fit_leaves_a_shut_valve_to_the_floor():
+    # a valve closing at x = -0.2 along a straight loading curve: the shut rows say only "at most zero",
+    # so the fit is the line through the open rows, not one bent towards the zeros
+    from models.diagnose.design import censored_fit
+
+    x = np.linspace(-1.0, 1.0, 401)
+    Y = np.column_stack([x])
+    y = np.clip(x + 0.2, 0.0, None)
+    shut = y <= 0.0
+    w, offset, _ = censored_fit(Y, y, np.zeros((len(x), 0)), np.ones(len(x), bool), shut, 0.0)
+    np.testing.assert_allclose([w[0], offset], [1.0, 0.2], atol=1e-6)
+    np.testing.assert_allclose(np.maximum(Y @ w + offset, 0.0), y, atol=1e-6)
+
+
 def test_coil_temperature_settles_to_duty_squared_law():
     duty = np.full(20000, 70.0)
     T = fx.coil_temperature_rise(duty, 10.0, 60.0, 40.0, 0.0)

@@ -71,6 +71,24 @@ def test_dead_zone_needs_the_flow_to_stop():
     assert "does not stop" in why
 
 
+def test_dead_zone_jump_is_seen_through_a_lag():
+    # breaths that open in 0.2 s through a 42 % cracking duty, the flow lagged by 50 ms: the jump at
+    # the cracking duty is smoothed past the band above it at the sensor, not at the valve
+    dz, lag = VOCABULARY["dead_zone"], {"tau_s": 0.05, "phase": 1.0}
+    t = np.arange(30000) / 100.0
+    phase = t % 3.0
+    duty = np.where(phase < 1.0, 30 + 35 * np.clip(phase / 0.2, 0, 1), 30.0)
+    valve = np.where(duty <= 42, 0.0, (duty - 35) * 4)  # 28 L/min at the cracking duty
+    flow = fx.first_order_lag(valve, 100.0, 0.05) + np.random.default_rng(3).normal(0, 0.5, len(t))
+    sig = _sig(duty, flow)
+    assert dz._jumps(sig, {"cracking_pct": 42.0}, {"valve_dynamics": lag})
+    # a valve closing by itself at 35 % comes to zero continuously: no jump at a duty below that
+    smooth = fx.first_order_lag(np.clip((duty - 35) * 4, 0, None), 100.0, 0.05)
+    assert not dz._jumps(_sig(duty, smooth), {"cracking_pct": 33.0}, {"valve_dynamics": lag})
+    # without the lag taken back, the smoothed jump is not seen in the band above the cracking duty
+    assert not dz._jumps(sig, {"cracking_pct": 42.0}, {})
+
+
 def test_saturation_needs_the_flow_to_flatten():
     sat = VOCABULARY["saturation"]
     duty = np.linspace(40, 70, 3000)

@@ -35,7 +35,7 @@ from ..metrics import Metrics, metrics
 from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
-from .design import build, fit_baseline, fit_final, fixed_base, unbend
+from .design import build, clip, fit_baseline, fit_final, fixed_base, unbend
 from .detectors import AMBIGUOUS, Selection, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
@@ -199,7 +199,7 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     base = fit_baseline(sig, folds) if model is None else fixed_base(model, sig)
     sel = select_effects(base, sig, folds, margins, progress=progress)
     hold = folds.holdout_at(raw.t_s)
-    baseline_lpm = base.predict(raw, {})
+    baseline_lpm = clip(base.predict(raw, {}), None, bool(base.shut(raw).any()))
     steps, preds, unconfirmed = _confirm(sel, sig, raw, folds, hold, baseline_lpm)
     findings, steps_lpm, before_lpm, unconfirmed = _findings(sel, steps, preds, sig, raw, folds, hold, baseline_lpm,
                                                              margins, unconfirmed)

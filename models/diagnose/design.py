@@ -39,13 +39,15 @@ from ..pi import PIModel, fit_pi, fit_weights
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
-from .signals import Signals
+from .signals import Signals, noise_lpm
 from .words import VOCABULARY, Columns
 
 #: Relative ridge on the normal equations (keeps a column that is all zero harmless).
 RIDGE = 1e-10
 #: Operators of the paper's symmetric PI baseline (Eq. 2).
 BASELINE_N = 50
+#: A measured flow within this many times the sensor noise of zero is a valve shut by itself.
+SHUT_NOISE = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,6 +114,14 @@ class Base:
                                 lambda: self.model.y_scale.from_unit(self.regressors(sig, chain) @ w + c))
         return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz, sig.rest_pct))
 
+    def shut(self, sig: Signals) -> np.ndarray:
+        """Rows where a PI fitted on the recording is left to the valve's no-reverse-flow floor: the
+        measured flow is zero within :data:`SHUT_NOISE` x the noise (none for a model file, whose
+        simulation closes by itself; cached)."""
+        if not self.refit:
+            return np.zeros(len(sig), dtype=bool)
+        return self.root._cached(("shut", id(sig)), lambda: shut_rows(sig.flow_lpm))
+
     def bends(self, sig: Signals) -> tuple:
         """Loop offset, descending lift and ``x dq/dx`` (all L/min) of the root baseline on ``sig``'s duty:
         the ways a PI fitted with an effect present bends (cached)."""
@@ -164,6 +174,11 @@ class Base:
                 del cache[old]  # one chain at a time: each entry is N x m
             hit = cache[k] = at_sensor(self.regressors(sig, chain), sig, rest)
         return hit
+
+
+def shut_rows(flow_lpm: np.ndarray) -> np.ndarray:
+    """Rows where the measured flow is zero within :data:`SHUT_NOISE` x the sensor noise."""
+    return flow_lpm <= SHUT_NOISE * noise_lpm(flow_lpm) + 1e-9
 
 
 def simulated(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, rest_pct: float | None = None) -> np.ndarray:
@@ -234,9 +249,12 @@ class Design:
         Column names: ``gain``, ``offset``, ``loop_width`` and ``duty_scale`` (refitted baseline),
         then effect words.
     fit_ok : ndarray of bool
-        Rows the fit may use (saturated rows are left to the clip).
+        Rows the fit may use (saturated rows are left to the clip, shut rows to the floor).
     clip_hi : float or None
         Full-open flow (L/min) the prediction is clipped to.
+    floor : bool
+        No reverse flow: the prediction is clipped at zero (a PI fitted on a recording where the
+        valve shuts by itself; its loading curve runs on below zero where the valve closes).
     """
 
     F: np.ndarray
@@ -244,11 +262,25 @@ class Design:
     names: tuple
     fit_ok: np.ndarray
     clip_hi: float | None = None
+    floor: bool = False
+
+    @property
+    def clipped(self) -> bool:
+        """Whether the prediction is clipped at either end."""
+        return self.clip_hi is not None or self.floor
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
-        """``min(F + X theta, clip_hi)`` for one ``theta`` (p,) or several (p, K) -> (N,) or (N, K)."""
+        """``min(F + X theta, clip_hi)``, at least 0 with the floor, for one ``theta`` (p,) or several
+        (p, K) -> (N,) or (N, K)."""
         q = (self.F if theta.ndim == 1 else self.F[:, None]) + self.X @ theta
-        return q if self.clip_hi is None else np.minimum(q, self.clip_hi)
+        return clip(q, self.clip_hi, self.floor)
+
+
+def clip(q: np.ndarray, clip_hi: float | None, floor: bool) -> np.ndarray:
+    """``q`` clipped at the full-open flow ``clip_hi`` and, with ``floor``, at zero flow."""
+    if clip_hi is not None:
+        q = np.minimum(q, clip_hi)
+    return np.maximum(q, 0.0) if floor else q
 
 
 def build(base: Base, sig: Signals, chain: dict) -> Design:
@@ -291,7 +323,10 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         X = np.hstack([X, np.column_stack(extra)])
     clip_hi = clip_of(chain)
     fit_ok = np.ones(n, dtype=bool) if clip_hi is None else ref < clip_hi
-    return Design(F, X, tuple(names), fit_ok, clip_hi)
+    shut = base.shut(sig)
+    # a shut row is left to the floor where the baseline has its valve closed too (a censored
+    # row: its flow says only that the prediction is at most zero), and fitted where it has flow
+    return Design(F, X, tuple(names), fit_ok & ~(shut & (ref <= 0.0)), clip_hi, bool(shut.any()))
 
 
 def clip_of(chain: dict) -> float | None:
@@ -382,13 +417,13 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
         theta = np.column_stack([solve(At - A[k], bt - b[k]) for k in range(K)])
     else:
         theta = np.zeros((0, K))
-    if design.clip_hi is None:
+    if not design.clipped:
         Aa, ba, ca = G[:, :p, :p], G[:, :p, p], G[:, p, p]
         # sse[k, j] for theta_k on fold j
         sse = ca[None, :] - 2.0 * (theta.T @ ba.T) + np.einsum("pk,jpq,qk->kj", theta, Aa, theta)
     else:
         Fo, yo = design.F[order], y[order]
-        q = np.minimum(Fo[:, None] + Z[:, :p] @ theta, design.clip_hi)
+        q = clip(Fo[:, None] + Z[:, :p] @ theta, design.clip_hi, design.floor)
         e2 = (q - yo[:, None]) ** 2
         sse = np.stack([e2[i].sum(axis=0) for i in sl], axis=1)
     return CVResult(sse, np.diff(edges))
@@ -404,12 +439,39 @@ def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 
 def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
-    """The paper's symmetric PI (Eq. 2-4, ``n`` operators, constrained) fitted on the training rows only."""
+    """The paper's symmetric PI (Eq. 2-4, ``n`` operators, constrained) fitted on the training rows only,
+    but those where the valve is shut by itself (:meth:`Base.shut`: left to the no-reverse-flow floor)."""
     xs = Scaling.from_data(sig.duty_pct)
     ys = Scaling.from_data(sig.flow_lpm[folds.train])
-    core = fit_pi(xs.to_unit(sig.duty_pct), ys.to_unit(sig.flow_lpm), n=n, rows=folds.train)
+    x_unit, y_unit = xs.to_unit(sig.duty_pct), ys.to_unit(sig.flow_lpm)
+    shut = shut_rows(sig.flow_lpm)
+    rows = folds.train & ~shut
+    core = fit_pi(x_unit, y_unit, n=n, rows=rows)
+    if shut.any():  # refitted with the shut rows where it has the valve open (censored rows)
+        rows = folds.train & ~(shut & (core.predict(x_unit)[0] <= ys.to_unit(0.0)))
+        core = fit_pi(x_unit, y_unit, n=n, rows=rows)
     model = FittedModel("pi", core, xs, ys, meta={"source": "fitted on the training rows", "n": n})
-    return Base(True, model, core, xs, density(core, xs, sig, ys.to_unit(sig.flow_lpm), folds.train))
+    return Base(True, model, core, xs, density(core, xs, sig, y_unit, rows))
+
+
+def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndarray, shut: np.ndarray,
+                 zero_unit: float) -> tuple:
+    """:func:`models.pi.fit_weights` on ``rows`` where a valve shut by itself is censored at zero flow.
+
+    A shut row only says that the flow the valve would pass is at most zero: fitted first without
+    the shut rows, then again with those where that fit has the valve open (one step of a Tobit
+    regression), so the loading curve may run on below zero where the valve closes.
+    """
+    fr = rows & ~shut
+    w, offset, coef = fit_weights(Y[fr], y_unit[fr], H[fr])
+    over = rows & shut
+    if not over.any():
+        return w, offset, coef
+    over[over] = Y[over] @ w + offset + H[over] @ coef > zero_unit
+    if over.any():
+        fr = fr | over
+        w, offset, coef = fit_weights(Y[fr], y_unit[fr], H[fr])
+    return w, offset, coef
 
 
 def density(shape: PIModel, xs: Scaling, sig: Signals, y_unit: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -471,11 +533,13 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
         fit_ok = d.fit_ok
     else:  # the exact laws are in the operators: no column to fit jointly
         H, fit_ok = np.zeros((len(sig), 0)), _clip_rows(base, sig, chain)
-    fr = rows & fit_ok & is_open(sig, chain)  # the shut rows of a dead zone say nothing of the PI
+    # the shut rows of a dead zone say nothing of the PI
+    fr = rows & fit_ok & is_open(sig, chain)
     m = base.model
     ys = m.y_scale
     Y = base.regressors_at_sensor(sig, chain)
-    w, offset, _ = fit_weights(Y[fr], ys.to_unit(sig.flow_lpm[fr]), H[fr] / ys.half_range)
+    y_unit = ys.to_unit(sig.flow_lpm)
+    w, offset, _ = censored_fit(Y, y_unit, H / ys.half_range, fr, base.shut(sig), float(ys.to_unit(0.0)))
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
     return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root)
