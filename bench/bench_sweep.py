@@ -109,7 +109,8 @@ def main() -> None:
         for i in range(a.rounds):
             order = [("this checkout", ROOT), (f"baseline {a.baseline}", base)]
             for name, tree in order if i % 2 == 0 else order[::-1]:
-                r = sweep_rows.run_in_tree(tree, SWEEP, Path(tmp) / "rows.json", a.workers)
+                # each implementation on its own config/ (a newer run.toml may hold keys an older schema refuses)
+                r = sweep_rows.run_in_tree(tree, tree / SWEEP.relative_to(ROOT), Path(tmp) / "rows.json", a.workers)
                 warm[name].append(r["seconds"])
                 cpu[name].append(r["cpu_s"])
                 rows.setdefault(name, r)
