@@ -211,9 +211,11 @@ def main() -> None:
         q = {k: np.median([s["compute_us"][k] for s in ss]) for k in ("p50", "p99")}
         b = {k: min(s["compute_us"][k] for s in ss) for k in ("p50", "p99")}
         tr = ss[0]["tracking"]
+        iae, mae = (("-" if tr[k] is None else f"{tr[k]:.4f}") for k in ("iae", "steady_mae_lpm"))
+        faults = ", ".join(f"{f['kind']} x{f['count']}" for f in ss[0]["faults"]) or "none"
         print(f"  {name:34s} compute median (best) of {rounds}: p50 {q['p50']:6.1f} ({b['p50']:5.1f}, "
               f"{q['p50'] / base['p50']:.2f}x)  p99 {q['p99']:6.1f} ({b['p99']:5.1f}, {q['p99'] / base['p99']:.2f}x)   "
-              f"IAE {tr['iae']:.4f} L, steady MAE {tr['steady_mae_lpm']:.3f} L/min")
+              f"IAE {iae} L, steady MAE {mae} L/min, faults {faults}")
     now = got["now, rehearsed (make run)"]
     p50, p99 = (np.median([s["compute_us"][k] for s in now]) for k in ("p50", "p99"))
     print(f"  Done when (ff+kf, simulated valve): compute p50 <= 30 us: {p50:.1f} ({'met' if p50 <= 30 else 'NOT met'}), "

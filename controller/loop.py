@@ -19,9 +19,8 @@ when no measurement came for :data:`WATCHDOG_PERIODS` periods it steps itself
 once. Then lateness is step start - arrival (the lock's wait; start -
 watchdog deadline on a watchdog step) and an overrun is a measurement that
 got no step of its own: a step that started after it came took it along,
-or it came within :data:`MIN_GAP_PERIODS` of the previous measurement's
-step (the next step takes it: a flood of measurements never steps the laws faster than
-twice the rate).
+or the steps were rationed (:data:`BURST_STEPS`: a flood of measurements never steps the
+laws faster than twice the rate on average; the next step takes it).
 
 Per step (one period):
 
@@ -139,10 +138,12 @@ class LoopSettings:
 #: came (the watchdog's own steps: stale check, safe state, status). Above 1, so that a sensor whose
 #: clock runs slightly slower than the loop's never meets a watchdog step just before its measurement.
 WATCHDOG_PERIODS = 1.5
-#: With ``trigger = "measurement"``: a measurement that comes sooner than this many periods after the previous step
-#: a measurement triggered gets no step of its own (an overrun); the next step takes it. The laws step by one period, so a flood of
-#: measurements (a faulty or hostile publisher) must not step them faster than twice the rate.
-MIN_GAP_PERIODS = 0.5
+#: With ``trigger = "measurement"``: the measurements' steps are rationed by a token bucket of this many steps,
+#: refilled at twice the rate. The laws step by one period, so a flood of measurements (a faulty or hostile
+#: publisher) must not step them faster than twice the rate on average; a few bunched ones (transport jitter, a
+#: sensor catching up) each still get their step at once. A measurement that finds the bucket empty gets none
+#: (an overrun); the next step takes it.
+BURST_STEPS = 4.0
 #: The triggers of a step (:attr:`LoopSettings.trigger`).
 TRIGGERS = ("period", "measurement")
 #: With :attr:`LoopSettings.rehearse`: the loop wakes this much earlier than its spin, for the rehearsal (~20-30 us
@@ -546,28 +547,30 @@ class Loop:
             if on_measurement:
                 # Each measurement's step runs at once on the transport's thread (arrived); this thread
                 # is the watchdog: a step when none came for WATCHDOG_PERIODS periods, and the run's end.
-                watch, min_gap = WATCHDOG_PERIODS * period, MIN_GAP_PERIODS * period
+                watch, refill = WATCHDOG_PERIODS * period, 2.0 / period
                 lock = threading.Lock()  # one step at a time
                 serving, failed = True, []
                 last_wake = t0 - watch
-                last_arrival = -math.inf  # start of the newest step a measurement triggered
+                tokens, refilled = BURST_STEPS, t0  # the measurements' steps rationed (BURST_STEPS)
                 # The transport's threads that step run at the loop's priority while it runs (Zenoh's own
                 # are below it, [zenoh] io_priority): the step is the loop's work wherever it runs.
                 lifted, priority = {}, cfg.rt_priority if real_time else 0
 
                 def arrived(arrival_s: float) -> None:
-                    nonlocal overruns, serving, last_arrival
+                    nonlocal overruns, serving, tokens, refilled
                     with lock:
                         if not serving:
                             return
                         if priority and threading.get_native_id() not in lifted:
                             lifted[threading.get_native_id()] = _lift(priority)
-                        if last_wake >= arrival_s or arrival_s - last_arrival < min_gap:  # taken along, or too soon
+                        tokens = min(BURST_STEPS, tokens + max(arrival_s - refilled, 0.0) * refill)
+                        refilled = max(refilled, arrival_s)
+                        if last_wake >= arrival_s or tokens < 1.0:  # taken along by a step that came first, or rationed
                             overruns += 1
                             return
+                        tokens -= 1.0
                         try:
-                            last_arrival = clock.now()
-                            step(last_arrival, arrival_s)
+                            step(clock.now(), arrival_s)
                         except BaseException as exc:  # raised again on the loop's thread
                             failed.append(exc)
                             serving = False

@@ -546,10 +546,13 @@ def test_measurement_trigger_runs_the_steps_at_the_loops_priority_and_restores_i
     assert after == [(after[0][0], after[0][0])] and after[0][0] != os.SCHED_FIFO  # restored after the run
 
 
-def test_measurement_trigger_a_flood_of_measurements_steps_at_most_at_twice_the_rate(cfg, model):
-    """Measurements 0.1 period apart (a faulty or hostile publisher): steps come at least half a period apart,
-    every measurement is either stepped or counted as an overrun, and the loop keeps running on them."""
+def test_measurement_trigger_a_flood_of_measurements_steps_at_most_at_twice_the_rate_on_average(cfg, model):
+    """Measurements 0.1 period apart (a faulty or hostile publisher): they step the laws at most at twice the
+    rate on average (plus the burst), every measurement is either stepped or counted as an overrun, and the
+    loop keeps running on them."""
     import dataclasses
+
+    from controller.loop import BURST_STEPS
 
     period = 1.0 / RATE
     arrivals = 0.0005 + np.arange(2000) * 0.1 * period
@@ -559,6 +562,6 @@ def test_measurement_trigger_a_flood_of_measurements_steps_at_most_at_twice_the_
                clock=sensor).run(arrivals[-1] + 1e-4)
     t = res.columns["t_s"]
     during = t >= arrivals[0]
-    assert np.all(np.diff(t[during]) >= 0.5 * period - 1e-12)
+    assert during.sum() <= 2 * (arrivals[-1] - arrivals[0]) / period + BURST_STEPS + 1
     assert during.sum() + res.overruns >= len(arrivals)  # each stepped, or counted (watchdog steps take some)
     assert np.all(res.columns["state"][during][1:] == RUNNING) and "stale" not in res.faults.counts()
