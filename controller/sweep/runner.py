@@ -175,8 +175,9 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
     obj = np.asarray(table[s.objective], dtype=np.float64)
     best = int(np.nanargmin(np.where(np.isfinite(obj), obj, np.nan))) if np.isfinite(obj).any() else 0
     if s.margins_top:
-        top = np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]
-        table.update(_margins(s, plants[0], ref, models, top, scheduler, workers))
+        with one_blas_thread():  # a margin costs milliseconds: a pool would cost more than it saves
+            top = np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]
+            table.update(_margins(s, plants[0], ref, models, top))
         columns += list(MARGIN_NAMES)
     return SweepResult(s, table, columns, time.perf_counter() - t0, best)
 
@@ -191,40 +192,22 @@ def _parameter_columns(s: sp.SweepSpec):
     return table, ["controller", *names]
 
 
-@dataclass(frozen=True)
-class MarginTask:
-    """One top candidate's margins to compute, picklable: the run, its controller word and settings, the
-    models, the valve linearized at the operating flow."""
-
-    run: object
-    word: str
-    row: dict
-    models: dict
-    op: object
-
-
-def margins_one(t: MarginTask) -> tuple[float, float]:
-    """``(gain margin dB, phase margin deg)`` of one candidate (a pool task: a python-control loop costs
-    about a tenth of a second, so the top candidates share the cores)."""
-    from . import margins as mg
-
-    with one_blas_thread():
-        p, _ = build_one(t.run, t.word, t.row, t.models)
-        k_model = mg.model_gain(p.forward, 0, t.op.flow_lpm) if t.word == "ff+kf" else None
-        m = mg.loop_margins(p, 0, t.op, k_model)
-    return m.gain_margin_db, m.phase_margin_deg
-
-
-def _margins(s: sp.SweepSpec, plant, ref, models: dict, top, scheduler: str | None, workers: int | None) -> dict:
+def _margins(s: sp.SweepSpec, plant, ref, models: dict, top) -> dict:
     from . import margins as mg
 
     run = s.run
     flow = s.margins_flow_lpm if s.margins_flow_lpm is not None else float(np.max(ref))
     op = mg.operating_point(plant, flow, run["loop"]["rate_hz"])
-    tasks = [MarginTask(run, s.candidates.controller[i], s.candidates.row(i), models, op) for i in top]
     out = {k: [None] * len(s.candidates) for k in MARGIN_NAMES}
-    for i, (gm, pm) in zip(top, map_chunks(margins_one, tasks, [1] * len(tasks), scheduler, workers, desc="margins")):
-        out["gain_margin_db"][i], out["phase_margin_deg"][i] = gm, pm
+    k_model = {}
+    for i in top:
+        word, row = s.candidates.controller[i], s.candidates.row(i)
+        path = run.resolve(sp.setting(run, row, "model"))
+        p, _ = build_one(run, word, row, models)
+        if word == "ff+kf" and path not in k_model:
+            k_model[path] = mg.model_gain(p.forward, 0, flow)
+        m = mg.loop_margins(p, 0, op, k_model.get(path))
+        out["gain_margin_db"][i], out["phase_margin_deg"][i] = m.gain_margin_db, m.phase_margin_deg
     return out
 
 
