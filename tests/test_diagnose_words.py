@@ -71,6 +71,18 @@ def test_dead_zone_needs_the_flow_to_stop():
     assert "does not stop" in why
 
 
+def test_dead_zone_against_an_extrapolated_model_needs_a_jump():
+    # a PI run on below the rows it was fitted on may predict flow where a valve closing by itself
+    # passes none: that is no cracking duty unless the flow jumps open above it
+    dz = VOCABULARY["dead_zone"]
+    duty = np.r_[np.linspace(30, 70, 1000), np.linspace(70, 30, 1000)]
+    extrapolated = (duty - 30) * 4 + 10  # flow all the way down
+    closing = np.clip((duty - 35) * 4, 0, None)  # the valve closes by itself at 35 %
+    assert "jump" in dz.support(_sig(duty, closing), {"cracking_pct": 34.0}, extrapolated, 0.5, extrapolated=True)
+    cracking = np.where(duty < 42, 0.0, closing)  # shut until 42 %, then 28 L/min at once
+    assert dz.support(_sig(duty, cracking), {"cracking_pct": 42.0}, extrapolated, 0.5, extrapolated=True) is None
+
+
 def test_dead_zone_jump_is_seen_through_a_lag():
     # breaths that open in 0.2 s through a 42 % cracking duty, the flow lagged by 50 ms: the jump at
     # the cracking duty is smoothed past the band above it at the sensor, not at the valve

@@ -601,7 +601,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         # either: what its law's own model (the PI fitted on the rows the law leaves open, its
         # coefficients) predicts there without the law, no reverse flow, is the model it corrects
         without = np.clip(build(b, sig, chain).predict(theta), 0.0, None)
-        why = w.support(sig, params, without, noise, chain) and why
+        why = w.support(sig, params, without, noise, chain, extrapolated=True) and why
     if why:
         return UNSUPPORTED, why
     c.params = params

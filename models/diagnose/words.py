@@ -162,9 +162,11 @@ class Word:
         return {k: float(v) for k, v in params.items()}
 
     def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float,
-                chain: dict | None = None) -> str | None:
+                chain: dict | None = None, extrapolated: bool = False) -> str | None:
         """``None``, or why the recording lacks the rows that would show this law (range-end laws);
-        ``chain``: the named words it joins (their time response delays where the law shows)."""
+        ``chain``: the named words it joins (their time response delays where the law shows);
+        ``extrapolated``: ``before_lpm`` is a model fitted without the rows the law explains, run on
+        past them."""
         return None
 
     def implausible(self, phys: dict) -> str | None:
@@ -302,7 +304,7 @@ class CoilHeating(Word):
             p["rise55_k"] = float(coef)
         return p
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
         if sig.coil_temp_c is None:
             return None
         r = params.get("copper_law_ratio", 1.0)
@@ -402,7 +404,7 @@ class DeadZone(Word):
     def flow_gain(self, sig, params):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
         shut = sig.duty_pct <= params["cracking_pct"]
         if shut.sum() < MIN_END_ROWS:
             return f"only {int(shut.sum())} rows below the cracking duty"
@@ -421,6 +423,10 @@ class DeadZone(Word):
         # well above zero, where a valve closing by itself (a fitted PI smooths its kink) comes to
         # zero flow continuously
         jumps = self._jumps(sig, params, chain or {})
+        if extrapolated and not jumps:
+            # a PI run on below the rows it was fitted on predicts anything there: only a valve that
+            # opens with a jump shows a cracking duty (a valve closing by itself comes to zero flow)
+            return "the flow does not jump open above the cracking duty"
         for rows in (shut, shut & (np.abs(before_lpm) > lim) & jumps):
             if rows.sum() < MIN_END_ROWS:
                 continue
@@ -463,7 +469,7 @@ class Saturation(Word):
     def clip_lpm(self, params):
         return params["full_open_lpm"]
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
         top = before_lpm > params["full_open_lpm"]
         if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
