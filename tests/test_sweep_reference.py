@@ -1,4 +1,5 @@
-"""The compiled laws give the rows the numpy laws gave (tests/data/sweep_reference, commit 5630bab)."""
+"""The compiled laws give the rows the numpy laws gave (tests/data/sweep_reference: commit a3541a9, plus the law
+changes made since, written in numpy as patches of it)."""
 from __future__ import annotations
 
 import json

@@ -1,11 +1,14 @@
 """Write reference.json: the rows of sweep.toml as the numpy laws computed them before they were compiled (commit a3541a9).
 
-Checks the commit out into a temporary git worktree, runs the sweep there
+Checks the commit out into a temporary git worktree, applies the law changes
+made since, written in the numpy laws' own terms (``*.patch`` here: the Kalman
+bias held while the model has the valve closed, ef50fd0), runs the sweep there
 (with this checkout's Python environment) and stores every column at full
 precision. Usage: ``python tests/data/sweep_reference/make_reference.py [COMMIT]``.
 """
 from __future__ import annotations
 
+import glob
 import os
 import subprocess
 import sys
@@ -32,6 +35,8 @@ def main() -> None:
         subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", tree, commit], check=True,
                        stdout=subprocess.DEVNULL)
         try:
+            for patch in sorted(glob.glob(os.path.join(HERE, "*.patch"))):
+                subprocess.run(["git", "-C", tree, "apply", patch], check=True)
             subprocess.run([sys.executable, "-c", RUN, os.path.join(HERE, "sweep.toml"),
                             os.path.join(HERE, "reference.json"), commit], cwd=tree, check=True,
                            env={**os.environ, "PYTHONPATH": tree})
