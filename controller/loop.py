@@ -615,8 +615,11 @@ class Loop:
 
                 deadline = t0
                 while True:
-                    step(clock.wait_until(deadline, rehearse), deadline)
+                    now = clock.wait_until(deadline, rehearse)
+                    step(now, deadline)
                     if stop is not None and stop():
+                        # the deadlines this last step woke past were missed too, though no step follows to count them
+                        overruns += int((now - deadline) / period)
                         break
                     if n_steps is not None and steps >= n_steps:
                         break
