@@ -6,7 +6,11 @@ stepped from Python once per period, ``controller/tuning.py``'s closed loop,
 before the compiled laws of issue 16), stored in ``bench/data/`` so a bench
 run needs no compile of the old code. Run this file to write them again
 (the old commit is unpacked with ``git archive`` into a temporary folder and
-run with this checkout's Python environment, on its own ``config/``).
+run with this checkout's Python environment, on its own ``config/``), with the
+law changes made since applied to it in its own numpy terms
+(:data:`LAW_PATCHES`, the same the compiled laws' reference test applies: the
+Kalman bias held while the model has the valve closed), so that the rows
+measure the speed work alone.
 
 Usage: ``python bench/sweep_rows.py [COMMIT]``.
 """
@@ -24,6 +28,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 ORIGINAL = "9861ad8"
 STORED = ROOT / "bench" / "data" / f"sweep_rows_{ORIGINAL}.json.gz"
+#: Law changes since :data:`ORIGINAL`, as patches of its numpy laws.
+LAW_PATCHES = sorted((ROOT / "tests" / "data" / "sweep_reference").glob("*.patch"))
 
 #: Run in a tree (cwd and PYTHONPATH): ``SWEEP.toml OUT.json WORKERS WARM``. A warm run first (a
 #: two-candidate sweep: kernels loaded, python-control imported), then the timed sweep, its rows
@@ -101,12 +107,14 @@ def main() -> None:
     commit = sys.argv[1] if len(sys.argv) > 1 else ORIGINAL
     with tempfile.TemporaryDirectory() as tmp:
         tree = unpack(commit, Path(tmp) / "tree")
+        for patch in LAW_PATCHES:
+            subprocess.run(["git", "apply", str(patch)], cwd=tree, check=True)
         rows = run_in_tree(tree, tree / "config" / "sweep.toml", Path(tmp) / "rows.json", warm=False)
-    rows = {"commit": commit, **rows}
+    rows = {"commit": commit, "law_patches": [p.name for p in LAW_PATCHES], **rows}
     STORED.parent.mkdir(exist_ok=True)
     with gzip.open(STORED, "wt") as fh:
         json.dump(rows, fh)
-    print(f"{STORED}: {len(rows['table']['controller'])} rows of config/sweep.toml from {commit}")
+    print(f"{STORED}: {len(rows['table']['controller'])} rows of config/sweep.toml from {commit} with {[p.name for p in LAW_PATCHES]}")
 
 
 if __name__ == "__main__":
