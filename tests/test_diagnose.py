@@ -194,6 +194,7 @@ def test_gross_coil_heating_is_modelled_by_its_exact_law():
     assert f.holdout_rmse_after < 0.3 * f.holdout_rmse_before and f.slope > 0.7
 
 
+@pytest.mark.slow  # ~13 s: make test keeps the suite under 5 minutes
 def test_gross_dead_zone_is_named_at_its_cracking_duty():
     d = diagnose_response(_plant_recording({"dead_zone": 45.0}, "paper_identification", 300.0))
     named = {f.effect: f for f in d.findings}

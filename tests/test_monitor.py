@@ -87,6 +87,7 @@ class PtyReader(threading.Thread):
         return self.out.decode("utf-8", "replace")
 
 
+@pytest.mark.slow  # ~13 s: make test keeps the suite under 5 minutes
 def test_monitor_in_a_pty_shows_a_live_run_of_another_process_and_records_it(tmp_path):
     """valvectl run --plant zenoh + valve-node; the monitor in a pseudo-terminal; a mode switch on ctrl/mode."""
     ep = f"tcp/127.0.0.1:{free_port()}"
