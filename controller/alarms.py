@@ -99,6 +99,10 @@ class Alarms:
         self._held = {"saturated": _Held(settings.saturated_hold_s),
                       "model_mismatch": _Held(settings.mismatch_hold_s),
                       "supply_low": _Held(settings.supply_hold_s)}
+        # bound once: the loop calls step() every period
+        self._sat, self._mismatch, self._supply = (self._held[k].update for k in KINDS)
+        self._duty_hi = duty_max_pct - settings.saturated_margin_pct
+        self._duty_lo = duty_min_pct + settings.saturated_margin_pct
         self._err_lp = 0.0
         self._sat_err0 = math.inf  # |error| when the duty reached its limit
         self._t_prev: float | None = None
@@ -106,26 +110,24 @@ class Alarms:
     def step(self, t_s: float, running: bool, duty_pct: float, error_lpm: float, mismatch_lpm: float,
              supply_bar: float | None) -> None:
         """One step: ``error_lpm`` = reference - flow; ``mismatch_lpm`` nan when the law has no model estimate."""
-        s, h = self.s, self._held
+        s = self.s
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
         if running and math.isfinite(error_lpm):
-            self._err_lp += (error_lpm - self._err_lp) * (1.0 - math.exp(-dt / s.error_tau_s))
-            e = self._err_lp
-            at_limit = ((duty_pct >= self.duty_max_pct - s.saturated_margin_pct and e > 0.0)
-                        or (duty_pct <= self.duty_min_pct + s.saturated_margin_pct and e < 0.0))
+            self._err_lp = e = self._err_lp + (error_lpm - self._err_lp) * (1.0 - math.exp(-dt / s.error_tau_s))
+            at_limit = (duty_pct >= self._duty_hi and e > 0.0) or (duty_pct <= self._duty_lo and e < 0.0)
             sat = at_limit and abs(e) >= s.saturated_error_lpm
             if not sat:
                 self._sat_err0 = math.inf
             elif self._sat_err0 == math.inf:
                 self._sat_err0 = abs(e)
-            h["saturated"].update(t_s, sat and abs(e) >= self._sat_err0 - s.saturated_error_lpm * 0.1)
-            h["model_mismatch"].update(t_s, abs(mismatch_lpm) > s.mismatch_lpm)  # nan compares False
+            self._sat(t_s, sat and abs(e) >= self._sat_err0 - s.saturated_error_lpm * 0.1)
+            self._mismatch(t_s, abs(mismatch_lpm) > s.mismatch_lpm)  # nan compares False
         else:
             self._err_lp, self._sat_err0 = 0.0, math.inf
-            h["saturated"].update(t_s, False)
-            h["model_mismatch"].update(t_s, False)
-        h["supply_low"].update(t_s, supply_bar is not None and supply_bar < s.supply_low_bar)
+            self._sat(t_s, False)
+            self._mismatch(t_s, False)
+        self._supply(t_s, supply_bar is not None and supply_bar < s.supply_low_bar)
 
     def active(self) -> list[str]:
         """The alarms raised now."""

@@ -57,6 +57,7 @@ import contextlib
 import gc
 import math
 import os
+import struct
 import sys
 import threading
 import time
@@ -286,32 +287,33 @@ class ProfileReference:
 
 
 class _Columns:
-    """Preallocated per-step arrays (grown by doubling when a run has no set length), one attribute each.
+    """The per-step record: one preallocated row of doubles per step, written by one ``struct`` call.
 
-    Filled at creation, so that no step meets a page of them for the first time (a page fault
-    of a few µs every 512 steps per column).
+    One call per step instead of one numpy item assignment per column (~0.5 µs against ~2 µs warm,
+    and fewer objects for a cold step to fetch). Zero-filled at creation (grown by doubling when a
+    run has no set length), so that no step meets a page of it for the first time.
     """
 
     FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "limit_duty_pct",
-              "meas_age_ms", "lateness_s", "compute_s")
-    __slots__ = FIELDS + ("state", "word", "n", "capacity")
+              "meas_age_ms", "lateness_s", "state", "word", "compute_s")  # word: index into control.MODES
+    ROW = struct.Struct(f"{len(FIELDS)}d")
+    #: The row without ``compute_s`` (written at the step's very end), and ``compute_s`` alone.
+    HEAD, LAST = struct.Struct(f"{len(FIELDS) - 1}d"), struct.Struct("d")
+    __slots__ = ("buf", "n", "capacity")
 
     def __init__(self, capacity: int):
         self.n, self.capacity = 0, capacity
-        for f in self.FIELDS:
-            setattr(self, f, np.full(capacity, 0.0))
-        self.state = np.full(capacity, 0, dtype=np.int8)
-        self.word = np.full(capacity, 0, dtype=np.int8)  # index into control.MODES
+        self.buf = bytearray(capacity * self.ROW.size)
 
     def grow(self) -> None:
+        self.buf += bytes(len(self.buf))
         self.capacity *= 2
-        for f in self.FIELDS + ("state", "word"):
-            setattr(self, f, np.resize(getattr(self, f), self.capacity))
 
     def trimmed(self) -> dict[str, np.ndarray]:
-        out = {f: getattr(self, f)[: self.n].copy() for f in self.FIELDS}
-        out["state"] = self.state[: self.n].copy()
-        out["controller"] = np.asarray(control.MODES)[self.word[: self.n]]
+        rows = np.frombuffer(self.buf, dtype=np.float64, count=self.n * len(self.FIELDS)).reshape(self.n, -1)
+        out = {f: rows[:, j].copy() for j, f in enumerate(self.FIELDS) if f not in ("state", "word")}
+        out["state"] = rows[:, self.FIELDS.index("state")].astype(np.int8)
+        out["controller"] = np.asarray(control.MODES)[rows[:, self.FIELDS.index("word")].astype(np.intp)]
         return out
 
 
@@ -409,6 +411,8 @@ class Loop:
         safe, flow_max = cfg.safe_duty_pct, cfg.flow_max_lpm
         stale_s, ref_stale_s = cfg.stale_ms * 1e-3, cfg.ref_stale_ms * 1e-3
         real_time = isinstance(clock, RealClock)  # a simulated clock does not stand still for the host
+        pack_head, pack_last = _Columns.HEAD.pack_into, _Columns.LAST.pack_into
+        row_bytes, last_at = _Columns.ROW.size, _Columns.HEAD.size
 
         # The loop's state, advanced by step() (on the loop's thread, or on the transport's with
         # trigger "measurement"; never by two at once).
@@ -517,15 +521,14 @@ class Loop:
             age_ms = (t - meas_t) * 1e3
             late = now - due
             limit = duty - ff - fb
-            cols.t_s[i], cols.ref_lpm[i], cols.flow_lpm[i], cols.duty_pct[i] = t, ref, meas, duty
-            cols.ff_duty_pct[i], cols.fb_duty_pct[i], cols.limit_duty_pct[i] = ff, fb, limit
-            cols.meas_age_ms[i], cols.lateness_s[i] = age_ms, late
-            cols.state[i], cols.word[i] = state, word_index[sup.word]
+            row = i * row_bytes
+            pack_head(cols.buf, row, t, ref, meas, duty, ff, fb, limit, age_ms, late, state, word_index[sup.word])
             cols.n = i + 1
             if writer is not None:
                 writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word, limit,
                               age_ms))
-            cols.compute_s[i] = end = pc() - c0
+            end = pc() - c0
+            pack_last(cols.buf, row + last_at, end)
             if end > compute_max:
                 compute_max = end
             if late > late_max:
@@ -556,21 +559,28 @@ class Loop:
                 # are below it, [zenoh] io_priority): the step is the loop's work wherever it runs.
                 lifted, priority = {}, cfg.rt_priority if real_time else 0
 
+                native_id, now_s = threading.get_native_id, clock.now  # bound: the arrival's path is the command's
+
                 def arrived(arrival_s: float) -> None:
                     nonlocal overruns, serving, tokens, refilled
                     with lock:
                         if not serving:
                             return
-                        if priority and threading.get_native_id() not in lifted:
-                            lifted[threading.get_native_id()] = _lift(priority)
-                        tokens = min(BURST_STEPS, tokens + max(arrival_s - refilled, 0.0) * refill)
-                        refilled = max(refilled, arrival_s)
+                        if priority:
+                            tid = native_id()
+                            if tid not in lifted:
+                                lifted[tid] = _lift(priority)
+                        if arrival_s > refilled:
+                            tokens += (arrival_s - refilled) * refill
+                            if tokens > BURST_STEPS:
+                                tokens = BURST_STEPS
+                            refilled = arrival_s
                         if last_wake >= arrival_s or tokens < 1.0:  # taken along by a step that came first, or rationed
                             overruns += 1
                             return
                         tokens -= 1.0
                         try:
-                            step(clock.now(), arrival_s)
+                            step(now_s(), arrival_s)
                         except BaseException as exc:  # raised again on the loop's thread
                             failed.append(exc)
                             serving = False

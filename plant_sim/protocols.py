@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -253,12 +254,12 @@ class BreathProfile:
         if not 0.0 <= self.end_fraction <= 1.0:
             raise InputError(f"breath profile: end_fraction must be in 0..1, got {self.end_fraction}")
 
-    @property
+    @cached_property  # computed once: the live loop reads both twice a step
     def period_s(self) -> float:
         """Breath period, s."""
         return 60.0 / self.breath_rate_bpm
 
-    @property
+    @cached_property
     def inspiration_s(self) -> float:
         """Inspiratory time, s."""
         return self.period_s * self.ie_ratio / (1.0 + self.ie_ratio)

@@ -19,6 +19,14 @@ decoding error), in time and memory bounded by the size limit:
    ``ctrl/mode``); ``seq`` an integer and ``t`` a finite number when present;
    ``src``, when present, a short string naming the publisher.
 
+A payload of DESIGN.md's fields alone (``t``, ``seq``, ``value``, ``src``;
+no other field, so nothing nested) takes a fast path: msgspec decodes it
+into those fields (~0.3 µs, against ~7 µs for ``json`` with the checks
+above) and the same limits are checked on the result; anything it does not
+take goes through the full parser, which alone decides and words the
+error. It is the measurement's path in the live loop, where each
+microsecond is the command's.
+
 Pure functions of bytes: no Zenoh here, so the fuzz tests drive them directly.
 """
 from __future__ import annotations
@@ -27,6 +35,8 @@ import json
 import math
 import re
 from typing import NamedTuple
+
+import msgspec
 
 #: Largest payload accepted on the control keys, bytes (a DESIGN.md payload is ~60 bytes).
 MAX_PAYLOAD_BYTES = 4096
@@ -135,8 +145,33 @@ def _number(obj: dict) -> Message:
     return Message(float(v), *_fields(obj))
 
 
+class _Fields(msgspec.Struct, forbid_unknown_fields=True):
+    """DESIGN.md's fields and no other: the fast path's shape (numbers as written: int or float)."""
+
+    value: int | float
+    t: int | float | None = None
+    seq: int | None = None
+    src: str | None = None
+
+
+_FIELDS = msgspec.json.Decoder(_Fields)
+_INT_BOUND = 10 ** INT_DIGITS  # integers of at most INT_DIGITS digits are below it
+
+
 def parse_number(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:
     """A message whose ``value`` is a finite number (``ref/flow``, ``meas/flow``, ``cmd/duty``, ``ctrl/error``)."""
+    if type(data) is bytes and len(data) <= max_bytes:
+        try:
+            f = _FIELDS.decode(data)  # JSON only: no NaN/Infinity literal, no overflowing float
+        except (msgspec.DecodeError, ValueError):  # the full parser words the error
+            pass
+        else:
+            v, t, seq, src = f.value, f.t, f.seq, f.src
+            if ((type(v) is float or -_INT_BOUND < v < _INT_BOUND)
+                    and (t is None or type(t) is float or -_INT_BOUND < t < _INT_BOUND)
+                    and (seq is None or -_INT_BOUND < seq < _INT_BOUND)
+                    and (src is None or len(src) <= WORD_CHARS)):
+                return Message(float(v), seq, None if t is None else float(t), src)
     return _number(decode(data, max_bytes))
 
 
@@ -169,6 +204,14 @@ def parse_word(data: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> Message:
     return Message(v, *_fields(obj))
 
 
+_ENCODER = msgspec.json.Encoder()
+
+
 def encode(t_s: float, seq: int, value, /, **extra) -> bytes:
-    """The payload of a message (UTF-8 JSON; receivers reject any non-finite number in it)."""
-    return json.dumps({"t": t_s, "seq": seq, "value": value, **extra}).encode()
+    """The payload of a message: UTF-8 JSON, a non-finite number written ``null`` (a receiver refuses it as a
+    value). msgspec writes it (~1 µs; ``json`` ~7), ``json`` what msgspec does not take (numpy scalars)."""
+    doc = {"t": t_s, "seq": seq, "value": value, **extra}
+    try:
+        return _ENCODER.encode(doc)
+    except TypeError:
+        return json.dumps(doc).encode()

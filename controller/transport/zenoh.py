@@ -199,9 +199,10 @@ class Inbox:
             self._try_recv = self.sub.try_recv
         else:  # a callback keeps the ring and signals each sample: for a loop that steps at each one
             kept = collections.deque(maxlen=ring)
+            pc = time.perf_counter
 
             def take(sample):
-                arrival_s = time.perf_counter()
+                arrival_s = pc()
                 kept.append(sample)
                 on_sample(arrival_s)
 
