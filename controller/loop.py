@@ -16,7 +16,8 @@ hand-off (an event's wake-up and the GIL's, 50-150 µs) lies between the
 measurement and its command. The loop's thread only sleeps, as the watchdog:
 when no measurement came for :data:`WATCHDOG_PERIODS` periods it steps itself
 (stale check, safe state, status); a lock keeps the two from stepping at
-once. Then lateness is step start - arrival (the lock's wait; start -
+once; it also rehearses the law just before the next measurement is due
+(``rehearse``). Then lateness is step start - arrival (the lock's wait; start -
 watchdog deadline on a watchdog step) and an overrun is a measurement that
 got no step of its own: a step that started after it came took it along,
 or the steps were rationed (:data:`BURST_STEPS`: a flood of measurements never steps the
@@ -110,10 +111,13 @@ class LoopSettings:
         (the sensor samples on its own clock; the transport must call the
         loop at each arrival: ``on_measurement(hook)``).
     rehearse : bool
-        With ``trigger = "period"`` on the real clock: rehearse the step's
-        compiled calls and the reference on scratch copies just before each
-        deadline (:data:`REHEARSAL_S`), so that the step itself runs on warm
-        caches (:meth:`Loop.run`).
+        On the real clock: rehearse the step's compiled calls on scratch
+        copies just before the step is due, so that the step itself runs on
+        warm caches (:meth:`Loop.run`). ``trigger = "period"``: the law, the
+        valve and the reference, :data:`REHEARSAL_S` before each deadline;
+        ``"measurement"``: the law, on the watchdog's thread,
+        :data:`MEASUREMENT_REHEARSAL_S` before the next measurement is due
+        (the last one's arrival plus a period).
     alarms : AlarmSettings
         Thresholds and hold times of the online alarms.
     fallback : SupervisorSettings
@@ -150,6 +154,10 @@ TRIGGERS = ("period", "measurement")
 #: With :attr:`LoopSettings.rehearse`: the loop wakes this much earlier than its spin, for the rehearsal (~20-30 us
 #: cold), so that the rehearsal ends before the deadline and the step is not made late by it.
 REHEARSAL_S = 50e-6
+#: With trigger ``measurement`` and :attr:`LoopSettings.rehearse`: the watchdog's thread rehearses the law's step this
+#: long before the next measurement is due (the last one's arrival plus a period): early enough that a measurement
+#: a little early rarely waits for it (~10-20 us), late enough that the caches are still warm when it comes.
+MEASUREMENT_REHEARSAL_S = 150e-6
 
 
 @contextlib.contextmanager
@@ -559,10 +567,12 @@ class Loop:
                 # are below it, [zenoh] io_priority): the step is the loop's work wherever it runs.
                 lifted, priority = {}, cfg.rt_priority if real_time else 0
 
+                last_arrival = -math.inf  # of the last measurement that got a step
+                rehearse_law, lead = cfg.rehearse and real_time, MEASUREMENT_REHEARSAL_S
                 native_id, now_s = threading.get_native_id, clock.now  # bound: the arrival's path is the command's
 
                 def arrived(arrival_s: float) -> None:
-                    nonlocal overruns, serving, tokens, refilled
+                    nonlocal overruns, serving, tokens, refilled, last_arrival
                     with lock:
                         if not serving:
                             return
@@ -579,6 +589,7 @@ class Loop:
                             overruns += 1
                             return
                         tokens -= 1.0
+                        last_arrival = arrival_s
                         try:
                             step(now_s(), arrival_s)
                         except BaseException as exc:  # raised again on the loop's thread
@@ -586,8 +597,18 @@ class Loop:
                             serving = False
 
                 serve(arrived)
+                rehearsed = -math.inf  # the arrival whose successor the law was rehearsed for
                 try:
                     while True:
+                        if rehearse_law and rehearsed < last_arrival and last_arrival + period - lead < last_wake + watch:
+                            # the law's step rehearsed (Loop.run's rehearsal) just before the next measurement is due
+                            expected = last_arrival
+                            clock.sleep_until(expected + period - lead)
+                            with lock:
+                                if last_arrival == expected:  # no measurement came meanwhile
+                                    sup.rehearse(period)
+                                rehearsed = expected
+                            continue
                         clock.sleep_until(last_wake + watch)  # sleeps, never spins: the arrivals need the GIL
                         with lock:
                             if failed:

@@ -11,6 +11,7 @@ import pytest
 from controller.config import controller_params, load_run_config
 from controller.loop import RECORD_COLUMNS, Loop, LoopSettings, ProfileReference, RealClock, SimClock
 from controller.run_summary import steady_mask, summary, tracking
+from controller.supervisor import Supervisor
 from controller.transport.sim import SimTransport
 from controller.watchdog import RUNNING, SAFE
 from models.model import load_model
@@ -366,8 +367,9 @@ class ThreadedSensor:
 
 def test_measurement_trigger_steps_on_the_transports_thread_and_never_twice_at_once(cfg, model):
     """Real clock, a delivering thread: its measurements are stepped on it (the command computed before
-    the hook returns), the loop's thread steps only as the watchdog, never both at once, and when the
-    measurements stop the watchdog's steps take the loop to safe."""
+    the hook returns), the loop's thread steps only as the watchdog and rehearses the law before the next
+    measurement is due, never while a step runs, and when the measurements stop the watchdog's steps take
+    the loop to safe."""
     import dataclasses
     import threading
 
@@ -376,14 +378,25 @@ def test_measurement_trigger_steps_on_the_transports_thread_and_never_twice_at_o
     sensor = ThreadedSensor(100, 1e-3)
     settings = dataclasses.replace(SETTINGS, trigger="measurement")
     stale_s = settings.stale_ms * 1e-3
-    loop = Loop(controller_params(cfg, "ff", model), sensor, ProfileReference(lambda t: 30.0), settings,
-                clock=RealClock(0.0))
+    sup = Supervisor.fixed(controller_params(cfg, "ff", model))
+    rehearsals, law_rehearse = [], sup.rehearse
+
+    def rehearse(dt_s):  # counted as a step of the loop's thread: never while another runs
+        rehearsals.append(threading.get_ident())
+        sensor.inside += 1
+        sensor.overlaps += sensor.inside > 1
+        law_rehearse(dt_s)
+        sensor.inside -= 1
+
+    sup.rehearse = rehearse
+    loop = Loop(sup, sensor, ProfileReference(lambda t: 30.0), settings, clock=RealClock(0.0))
     res = loop.run(stop=lambda: bool(sensor.done_at) and time.perf_counter() > sensor.done_at + 2 * stale_s)
     sensor.thread.join()
     assert sensor.overlaps == 0
     delivered = sensor.by_thread[sensor.thread.ident]
     assert delivered + res.overruns == 100  # each measurement stepped on its thread or taken by a watchdog step
     assert delivered > 0 and sensor.by_thread[threading.get_ident()] > 0  # the watchdog stepped too
+    assert rehearsals and set(rehearsals) == {threading.get_ident()}  # the watchdog's thread rehearsed
     assert "stale" in res.faults.counts()
     assert res.columns["state"][-1] == SAFE
 

@@ -12,9 +12,10 @@ The loop thread receives: subscribers hand samples to a
 threads) and the loop drains it with ``try_recv()`` once per step. A Python
 callback instead would wait for the GIL while the loop spins, ~5 ms a
 sample (the field notes' GIL trap). With ``trigger = "measurement"`` the
-measurements come through a callback instead, which runs the loop's step
-itself on Zenoh's thread (:meth:`ZenohTransport.on_measurement`): the loop's
-own thread then only sleeps, as the watchdog. Commands go out with priority
+samples of every key come through callbacks instead, and a measurement's
+runs the loop's step itself on Zenoh's thread
+(:meth:`ZenohTransport.on_measurement`): the loop's own thread then only
+sleeps, as the watchdog, and the step's polls are ``deque`` pops. Commands go out with priority
 ``REAL_TIME``, ``express`` (no batching) and congestion control ``DROP``: a
 late command is worth less than the next one.
 """
@@ -188,23 +189,30 @@ class Inbox:
         Largest payload parsed, bytes.
     on_sample : callable, optional
         ``on_sample(arrival_s)``, called on Zenoh's thread after each sample is kept (``arrival_s``:
-        ``time.perf_counter`` when it came); the samples are then kept by a Python callback, not a
-        ``RingChannel``.
+        ``time.perf_counter`` when it came); implies ``by_callback``.
+    by_callback : bool
+        The samples kept by a Python callback on Zenoh's thread in a ring of ``ring`` (a ``deque``), not
+        by a ``RingChannel``: a poll is then a ``deque`` pop, no call into Zenoh (a cold
+        ``RingChannel.try_recv`` cost a measurement's step ~5 µs). Only for a process whose loop
+        does not spin (trigger ``measurement``): the callback needs the GIL.
     """
 
     def __init__(self, session, key: str, parse=parse_number, guard: SourceGuard | None = None, ring: int = RING,
-                 budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES, on_sample=None):
-        if on_sample is None:
+                 budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES, on_sample=None,
+                 by_callback: bool = False):
+        if on_sample is None and not by_callback:
             self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
             self._try_recv = self.sub.try_recv
-        else:  # a callback keeps the ring and signals each sample: for a loop that steps at each one
+        else:  # a callback keeps the ring (and signals each sample: for a loop that steps at each one)
             kept = collections.deque(maxlen=ring)
             pc = time.perf_counter
+            keep = kept.append
 
             def take(sample):
                 arrival_s = pc()
-                kept.append(sample)
-                on_sample(arrival_s)
+                keep(sample)
+                if on_sample is not None:
+                    on_sample(arrival_s)
 
             def try_recv():
                 return kept.popleft() if kept else None
@@ -286,11 +294,12 @@ class ZenohTransport:
         self.session = session
         # trigger "measurement": each measurement calls the loop's hook on Zenoh's thread (on_measurement)
         self._hook = None
+        cb = trigger == "measurement"  # the loop's thread sleeps: every key kept by a callback (Inbox)
         self.meas_in = Inbox(session, f"{k}/meas/flow", guard=SourceGuard(stale_s),
-                             on_sample=self._arrived if trigger == "measurement" else None)
-        self.ref_in = Inbox(session, f"{k}/ref/flow")
-        self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word)
-        self.supply_in = Inbox(session, f"{k}/{AUX_KEYS['supply_bar']}")
+                             on_sample=self._arrived if cb else None)
+        self.ref_in = Inbox(session, f"{k}/ref/flow", by_callback=cb)
+        self.mode_in = Inbox(session, f"{k}/ctrl/mode", parse=parse_word, by_callback=cb)
+        self.supply_in = Inbox(session, f"{k}/{AUX_KEYS['supply_bar']}", by_callback=cb)
         self._supply_bar: float | None = None
         rt = {"priority": zenoh.Priority.REAL_TIME, "express": True, "congestion_control": zenoh.CongestionControl.DROP}
         self.cmd = _Publisher(session, f"{k}/cmd/duty", **rt)
