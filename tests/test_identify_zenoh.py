@@ -23,7 +23,7 @@ zenoh = pytest.importorskip("zenoh")
 TAU, DELAY = 0.015, 0.010
 
 
-def twin_config(tmp_path, **identify) -> str:
+def twin_config(tmp_path, name: str = "twin", **identify) -> str:
     """config/run.toml with the twin's lag and delay and no real-time priority, written to ``tmp_path``."""
     import copy
     import dataclasses
@@ -37,7 +37,7 @@ def twin_config(tmp_path, **identify) -> str:
     s["loop"]["rt_priority"] = 0
     # a loaded 2-core test machine stalls processes for a few hundred ms at times
     s["identify"].update({"stale_ms": 1500.0, "wait_s": 120.0, "tune_candidates": 8, **identify})
-    path = str(tmp_path / "twin.toml")
+    path = str(tmp_path / f"{name}.toml")
     write_run_config(dataclasses.replace(base, sections=s), path)
     return path
 
@@ -56,20 +56,64 @@ def stop(proc):
     return proc.communicate(timeout=60)
 
 
-def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
-    cfg = twin_config(tmp_path)
-    node, ep = node_and_endpoint(cfg, tmp_path)
-    out = tmp_path / "id"
+def identify(cfg, ep, duration_s, out):
+    return valvectl("identify", "--config", cfg, "--connect", ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
+                    "--duration", str(duration_s), "-o", str(out))
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """Two identifications of one valve-node, overlapped as a valve allows it.
+
+    ``full``: a 10 s protocol to its end. Once it has let the valve go (its
+    session over, its liveliness token gone) and fits, ``interrupted`` starts
+    and gets Ctrl-C in its sweep, with ``cmds`` the duty the valve received since.
+    """
+    tmp = tmp_path_factory.mktemp("identify_zenoh")
+    cfg = twin_config(tmp)
+    node, ep = node_and_endpoint(cfg, tmp)
+    watcher = client_session(ep)
+    cmds, alive = [], []
+    sub = watcher.declare_subscriber("vent/valve/insp/cmd/duty", lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
+    tok = watcher.liveliness().declare_subscriber("vent/valve/insp/alive/controller",
+                                                  lambda s: alive.append(s.kind == zenoh.SampleKind.PUT), history=True)
+    res, procs = {}, []
     try:
-        ident = valvectl("identify", "--config", cfg, "--connect", ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
-                         "--duration", "10", "-o", str(out))
-        so, se = ident.communicate(timeout=280)
+        full = identify(cfg, ep, 10, tmp / "full")
+        procs.append(full)
+        wait_for(lambda: alive and alive[-1], "the first identification's token", [full])
+        wait_for(lambda: not alive[-1], "the first identification letting the valve go")  # at its exit at the latest
+        n_full = len(cmds)
+        # its recording is all it is checked on: no stall of a busy machine may stop it before the Ctrl-C
+        ctrl_c = identify(twin_config(tmp, "patient", stale_ms=5000.0), ep, 30, tmp / "interrupted")
+        procs.append(ctrl_c)
+        csv = tmp / "interrupted" / "identification.csv"
+        wait_for(lambda: any(r[-2] == "sweep" for r in rows(csv)[-50:]), "the sweep", [ctrl_c])
+        ctrl_c.send_signal(signal.SIGINT)
+        _, se = ctrl_c.communicate(timeout=60)
+        time.sleep(0.3)
+        res["interrupted"] = (ctrl_c.returncode, se, tmp / "interrupted", cmds[n_full:])
+        _, se = full.communicate(timeout=280)
+        res["full"] = (full.returncode, se, tmp / "full")
     finally:
+        for p in procs:
+            stop(p)
+        sub.undeclare()
+        tok.undeclare()
+        watcher.close()
         stop(node)
-    assert ident.returncode == 0, se
+    res["node"] = json.loads((tmp / "n.json").read_text())
+    res["cfg"] = cfg
+    return res
+
+
+def test_identify_recovers_lag_delay_and_writes_a_run_configuration(sessions):
+    rc, se, out = sessions["full"]
+    cfg = sessions["cfg"]
+    assert rc == 0, se
     summ = json.loads((out / "identify.json").read_text())
     # the delay a loop sees is the valve's plus the transport's at that moment (within its 99th percentile)
-    rt_s = json.loads((tmp_path / "n.json").read_text())["round_trip_us"]["p99"] * 1e-6
+    rt_s = sessions["node"]["round_trip_us"]["p99"] * 1e-6
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
     assert summ["duration_s"] == pytest.approx(10.0, abs=0.1)
     dyn = summ["dynamics"]
@@ -94,29 +138,12 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(tmp_path):
         assert (out / f).stat().st_size > 0
 
 
-def test_ctrl_c_puts_the_valve_in_the_safe_duty_and_keeps_the_recording(tmp_path):
-    cfg = twin_config(tmp_path)
-    node, ep = node_and_endpoint(cfg, tmp_path)
-    out = tmp_path / "id"
-    watcher = client_session(ep)
-    cmds = []
-    sub = watcher.declare_subscriber("vent/valve/insp/cmd/duty", lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
-    try:
-        ident = valvectl("identify", "--config", cfg, "--connect", ep, "--listen", f"tcp/127.0.0.1:{free_port()}",
-                         "--duration", "120", "-o", str(out))
-        csv = out / "identification.csv"
-        wait_for(lambda: any(r[-2] == "sweep" for r in rows(csv)[-50:]), "the sweep", [ident])
-        ident.send_signal(signal.SIGINT)
-        so, se = ident.communicate(timeout=60)
-        time.sleep(0.3)
-    finally:
-        sub.undeclare()
-        watcher.close()
-        stop(node)
-    assert ident.returncode == 130, se
+def test_ctrl_c_puts_the_valve_in_the_safe_duty_and_keeps_the_recording(sessions):
+    rc, se, out, cmds = sessions["interrupted"]
+    assert rc == 130, se
     summ = json.loads((out / "identify.json").read_text())
-    assert summ["aborted"] and summ["reason"] == "interrupted" and summ["duration_s"] < 120
-    rec = read_recording(csv)  # every row complete and valid
+    assert summ["aborted"] and summ["reason"] == "interrupted" and summ["duration_s"] < 30
+    rec = read_recording(out / "identification.csv")  # every row complete and valid
     assert rec.text_columns["phase"][-1] == "safe" and rec.duty_pct[-1] == 0.0
     assert cmds and cmds[-1] == 0.0  # the valve received the safe duty last
 
@@ -131,8 +158,7 @@ def test_a_second_commander_is_refused(tmp_path):
     other = zenoh.open(c)
     token = other.liveliness().declare_token("vent/valve/insp/alive/controller")
     try:
-        ident = valvectl("identify", "--config", cfg, "--connect", f"tcp/127.0.0.1:{port}",
-                         "--listen", f"tcp/127.0.0.1:{free_port()}", "--duration", "20", "-o", str(tmp_path / "id"))
+        ident = identify(cfg, f"tcp/127.0.0.1:{port}", 20, tmp_path / "id")
         so, se = ident.communicate(timeout=120)
     finally:
         token.undeclare()
