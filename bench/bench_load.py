@@ -243,6 +243,7 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
            "overrun_pct": 100.0 * s["overruns"] / max(1, s["steps"] + s["overruns"]),
            "stale": stale_during(rec, duration), "node_steps": n.get("steps"), "node_overruns": n.get("overruns"),
            "fresh_cmd_pct": 100.0 * n["commands"] / n["steps"] if n.get("steps") else None,
+           "delivered_pct": 100.0 * n["commands"] / max(1, s["steps"]),
            "cmd_timeouts": n.get("command_timeouts"), "rt_p50_us": rt_us.get("p50"), "rt_p99_us": rt_us.get("p99"),
            "compute_max_us": s["compute_us"]["max"], "lateness_max_us": s["lateness_us"]["max"],
            "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]},
@@ -327,12 +328,15 @@ def main() -> None:
         print(" | ".join(cells))
     floods = [r for r in rows if "flooded_rate_pct" in r]
     if floods:
-        print("flood | rep | flooded process | rate % | longest step us | faults (controller) | bad commands (node)")
+        print("commands delivered: node steps that took a new command, per controller step (each step sends one)")
+        print("flood | rep | flooded process | rate % | longest step us | faults (controller) | bad commands (node) "
+              "| commands delivered % | rt p50 us")
         for r in floods:
             who = "valve node" if r["case"].endswith("cmd/duty") else "controller"
             longest = "-" if r["flooded_longest_us"] is None else f"{r['flooded_longest_us']:.0f}"
+            rt50 = "-" if r["rt_p50_us"] is None else f"{r['rt_p50_us']:.0f}"
             print(f"{r['case']} | {r['rep']} | {who} | {r['flooded_rate_pct']:.2f} | {longest} | {r['faults']} | "
-                  f"{r['bad_commands']}")
+                  f"{r['bad_commands']} | {r['delivered_pct']:.1f} | {rt50}")
     names = list(dict.fromkeys(r["case"] for r in rows))
     if a.repeat > 1:
         print(f"over {a.repeat} repetitions | overrun % median | overrun % worst | stale total | cmd timeouts total "

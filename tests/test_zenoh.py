@@ -96,9 +96,17 @@ def test_two_processes_flood_and_killed_valve(tmp_path):
     assert s["overruns"] < 0.2 * s["steps"]
 
 
-def test_valve_node_closes_when_the_controller_goes_silent():
+def test_valve_node_follows_valid_commands_through_garbage_and_closes_when_they_stop():
+    """A publisher follows each valid command with a burst of garbage on ``cmd/duty`` (out of range, NaN,
+    not JSON, nested, oversized): the node lives, counts the garbage and follows the valid commands
+    (50 % then 80 %: the flow rises with them); then nothing comes and its own command timeout closes it.
+    Each phase lasts until the flow shows it (a busy machine may take long), at most ``phase_s``."""
+    phase_s = 30.0
     ep = f"tcp/127.0.0.1:{free_port()}"
-    flows: list[tuple[int, float]] = []
+    flows: list[float] = []
+    garbage = [json.dumps({"t": 0, "seq": 10 ** 9, "value": 500.0}).encode(), b'{"value": NaN}', b"not json",
+               b"[" * 100 + b"]" * 100, b'{"value": ' + b"9" * 400 + b"}", b'{"value": -1}',
+               b'{"value": 1, "pad": "' + b"x" * 5000 + b'"}', b'{"value": "50"}']
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("scouting/multicast/enabled", "false")
@@ -108,27 +116,46 @@ def test_valve_node_closes_when_the_controller_goes_silent():
         alive = s.liveliness().declare_subscriber("vent/valve/insp/alive/valve", zenoh.handlers.RingChannel(16),
                                                   history=True)
         cmd = s.declare_publisher("vent/valve/insp/cmd/duty", encoding=zenoh.Encoding.APPLICATION_JSON)
+        junk = s.declare_publisher("vent/valve/insp/cmd/duty")
         node = valvectl("valve-node", "--connect", ep)
+        k, n_junk = 0, 0
+
+        def recent() -> float:
+            while (x := sub.try_recv()) is not None:
+                flows.append(json.loads(x.payload.to_bytes())["value"])
+            return float(np.mean(flows[-50:])) if len(flows) >= 50 else float("nan")
+
+        def command(duty: float | None, done) -> float:
+            """~500 Hz of ``duty`` (None: silence), each command followed by garbage, until ``done(flow)``."""
+            nonlocal k, n_junk
+            t_end = time.monotonic() + phase_s
+            flows.clear()
+            while time.monotonic() < t_end and not done(recent()):
+                t_next = time.monotonic() + 0.002
+                if duty is not None:
+                    cmd.put(json.dumps({"t": k * 2e-3, "seq": k, "value": duty}).encode())
+                    k += 1
+                    for _ in range(20):  # ~10 kHz of garbage: more than the 16 samples a poll once kept
+                        junk.put(garbage[n_junk % len(garbage)])
+                        n_junk += 1
+                time.sleep(max(0.0, t_next - time.monotonic()))
+            assert node.poll() is None
+            return recent()
+
         try:
             wait_for(lambda: alive.try_recv() is not None, "the valve's liveliness token", (node,))
-            def drain(phase):
-                while (x := sub.try_recv()) is not None:
-                    flows.append((phase, json.loads(x.payload.to_bytes())["value"]))
-
-            t_stop = time.monotonic() + 1.0
-            k = 0
-            while time.monotonic() < t_stop:  # a controller at ~500 Hz asking for 50 %
-                cmd.put(json.dumps({"t": k * 2e-3, "seq": k, "value": 50.0}).encode())
-                k += 1
-                time.sleep(0.002)
-                drain(1)
-            t_silent = time.monotonic()
-            while time.monotonic() < t_silent + 1.0:  # then nothing: the controller died
-                time.sleep(0.01)
-                drain(0)
+            closed_0 = command(None, lambda f: f < 2.0)  # no command yet: closed
+            open_50 = command(50.0, lambda f: f > closed_0 + 20.0)
+            open_80 = command(80.0, lambda f: f > open_50 + 20.0)
+            closed = command(None, lambda f: f < 2.0)  # the controller died: the node's own command timeout
         finally:
             node.send_signal(signal.SIGTERM)
-            node.communicate(timeout=30)
-    f = np.array(flows)
-    assert f[f[:, 0] == 1][-100:, 1].mean() > 20.0  # open at 50 % duty
-    assert f[f[:, 0] == 0][-100:, 1].mean() < 2.0  # closed by the node's own command timeout
+            out, err = node.communicate(timeout=30)
+    assert node.returncode == 0 and "Traceback" not in err, err
+    from tests.test_zenoh_hostile import node_stats
+
+    st = node_stats(out)
+    assert st["bad_commands"] > 0 and st["commands"] > 0 and st["command_timeouts"] >= 1
+    # the valid commands, not the garbage, set the duty: the flow rose with each
+    assert closed_0 < 2.0 and open_50 > closed_0 + 20.0 and open_80 > open_50 + 20.0, (closed_0, open_50, open_80)
+    assert closed < 2.0

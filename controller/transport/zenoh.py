@@ -35,6 +35,8 @@ from .payload import MAX_PAYLOAD_BYTES, Message, PayloadError, encode, parse_com
 
 #: Samples Zenoh keeps per subscribed key between two polls, and the most one poll takes.
 RING = 16
+#: Samples the valve node keeps of ``cmd/duty`` between two polls (read newest first: :class:`Inbox`).
+CMD_RING = 64
 #: Time one poll of one key may spend on its samples, s (a 1 kHz step has 1000 us; the law needs ~100).
 DRAIN_BUDGET_S = 150e-6
 #: Largest Zenoh message a session takes in, bytes (a payload of MAX_PAYLOAD_BYTES plus key and headers, with room):
@@ -187,6 +189,12 @@ class Inbox:
         Time one poll may spend, s.
     max_bytes : int
         Largest payload parsed, bytes.
+    newest_first : bool
+        Parse from the newest sample back and stop at the first valid one (no guard): the samples
+        older than it are superseded and dropped unread, so a flood of garbage costs a step the
+        parses of the garbage newer than the newest valid message, and a valid one that a flood
+        would leave unreached at the end of the budget (oldest first) is found first. For a key
+        where only the newest value counts (``cmd/duty`` at the valve node).
     on_sample : callable, optional
         ``on_sample(arrival_s)``, called on Zenoh's thread after each sample is kept (``arrival_s``:
         ``time.perf_counter`` when it came); implies ``by_callback``.
@@ -199,7 +207,9 @@ class Inbox:
 
     def __init__(self, session, key: str, parse=parse_number, guard: SourceGuard | None = None, ring: int = RING,
                  budget_s: float = DRAIN_BUDGET_S, max_bytes: int = MAX_PAYLOAD_BYTES, on_sample=None,
-                 by_callback: bool = False):
+                 by_callback: bool = False, newest_first: bool = False):
+        if newest_first and guard is not None:
+            raise ValueError("a guard must see every sample in order: no newest_first with a guard")
         if on_sample is None and not by_callback:
             self.sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
             self._try_recv = self.sub.try_recv
@@ -220,7 +230,7 @@ class Inbox:
             self.sub = session.declare_subscriber(key, take)
             self._try_recv = try_recv
         self.parse, self.guard, self.ring, self.budget_s, self.max_bytes = parse, guard, ring, budget_s, max_bytes
-        self.on_sample = on_sample
+        self.on_sample, self.newest_first = on_sample, newest_first
 
     def poll(self, accept=None) -> tuple[Message | None, int, int]:
         """``(newest accepted message or None, bad, spoofed)`` of the samples received since the last poll.
@@ -228,9 +238,11 @@ class Inbox:
         Bad: not a DESIGN.md payload, or a value ``accept`` rejects; spoofed:
         well formed but refused by the guard. Never raises for a payload.
         """
-        latest, bad, spoofed = None, 0, 0
         pc = time.perf_counter
         end = pc() + self.budget_s
+        if self.newest_first:
+            return self._poll_newest_first(accept, end)
+        latest, bad, spoofed = None, 0, 0
         try_recv, parse, guard = self._try_recv, self.parse, self.guard
         for _ in range(self.ring):
             s = try_recv()
@@ -250,6 +262,30 @@ class Inbox:
             if pc() > end:
                 break
         return latest, bad, spoofed
+
+    def _poll_newest_first(self, accept, end: float) -> tuple[Message | None, int, int]:
+        """Take every kept sample (no parsing), then parse from the newest back to the first valid one."""
+        samples = []
+        try_recv = self._try_recv
+        for _ in range(self.ring):
+            s = try_recv()
+            if s is None:
+                break
+            samples.append(s)
+        bad = 0
+        pc, parse = time.perf_counter, self.parse
+        for s in reversed(samples):
+            try:
+                m = parse(raw_payload(s, self.max_bytes))
+            except PayloadError:
+                bad += 1
+            else:
+                if accept is None or accept(m.value):
+                    return m, bad, 0
+                bad += 1
+            if pc() > end:
+                break
+        return None, bad, 0
 
     def undeclare(self) -> None:
         self.sub.undeclare()
@@ -400,7 +436,8 @@ class ValveNodeTransport:
 
     def __init__(self, session, valve_id: str = "insp"):
         k = f"vent/valve/{valve_id}"
-        self.cmd_in = Inbox(session, f"{k}/cmd/duty", parse=parse_command)
+        # newest first, with room: under a garbage flood the newest valid command is what counts
+        self.cmd_in = Inbox(session, f"{k}/cmd/duty", parse=parse_command, ring=CMD_RING, newest_first=True)
         self.meas = _Publisher(session, f"{k}/meas/flow", priority=zenoh.Priority.REAL_TIME, express=True,
                                congestion_control=zenoh.CongestionControl.DROP)
         self.aux = {col: _Publisher(session, f"{k}/{key}", express=True, congestion_control=zenoh.CongestionControl.DROP)
