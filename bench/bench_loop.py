@@ -21,7 +21,8 @@ Prints, for the live loop of ``valvectl run`` (ff+kf, config/run.toml):
    round trip of an echo process (the baseline), for both triggers, with
    the Done-when ratio (trigger measurement p50 <= 1.5x the echo's).
 
-The machine is shared (2 cores, other jobs running): figures vary from run to run.
+The machine is shared (2 cores, other jobs running): figures vary from run to run. Each case prints the
+load average at its start and the hypervisor's steal during it (``/proc/stat``, :func:`bench_load.host_steal_ms`).
 """
 from __future__ import annotations
 
@@ -38,6 +39,9 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from bench_load import host_steal_ms  # noqa: E402
 
 from controller.config import controller_params, load_run_config, preview_s  # noqa: E402
 from controller.laws import control, kalman  # noqa: E402
@@ -45,6 +49,7 @@ from controller.loop import Loop, ProfileReference, RealClock  # noqa: E402
 from controller.run_summary import summary  # noqa: E402
 from controller.supervisor import Supervisor  # noqa: E402
 from controller.transport.sim import SimTransport  # noqa: E402
+from controller.watchdog import Faults  # noqa: E402
 from models.model import load_model  # noqa: E402
 from plant_sim.plant import Plant, load_plant  # noqa: E402
 from plant_sim.protocols import BreathProfile  # noqa: E402
@@ -59,6 +64,13 @@ def pct(x):
 class PureStepSupervisor(Supervisor):
     """The previous live step (the baseline of compute_us): the pure ``control.step`` per period, fresh
     one-element arrays in and out, the Kalman prediction from ``kalman.predict``."""
+
+    def warm_up(self, dt_s, duty_pct):
+        """The live path's warm-up, and this step's too: its kernels (numba's cache, or a compilation) load
+        before the first deadline, not in a timed step (the first round once measured a 25 s step)."""
+        super().warm_up(dt_s, duty_pct)
+        self.step(self.init(0.0, duty_pct), 0.0, 0.0, dt_s, 0.0, 0.0, Faults())
+        self._reset()
 
     def step(self, ctrl, ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults):
         p = self.params
@@ -85,6 +97,13 @@ class PurePlantTransport(SimTransport):
     def command(self, duty_pct, t_s):
         self._state, self.last = self.plant.step(self._state, duty_pct)
         self._meas = self.last.flow_lpm
+
+
+def conditions(run):
+    """``run()``'s result and ``"load L steal S ms"``: the load average at its start, the host's steal during it."""
+    load, steal = os.getloadavg()[0], host_steal_ms()
+    out = run()
+    return out, f"load {load:.1f} steal {host_steal_ms() - steal:.0f} ms"
 
 
 def in_process(cfg, model, spin_s: float, rt: int, previous: bool = False, rehearse: bool = True) -> dict:
@@ -193,19 +212,22 @@ def main() -> None:
     base = None
     for name, s_, r_ in (("sleep to deadline (baseline)", 0.0, 0), (f"hybrid, spin {spin*1e6:.0f} us", spin, 0),
                          (f"hybrid + SCHED_FIFO {rt}", spin, rt)):
-        s = in_process(cfg, model, s_, r_)
+        s, cond = conditions(lambda: in_process(cfg, model, s_, r_))
         base = base or s["lateness_us"]["p99"]
         print(f"  {name:34s} {pct(s['lateness_us'])}   {pct(s['compute_us'])}   overruns {s['overruns']}, "
-              f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline")
+              f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline   ({cond})")
     print("\nthe step's own work (compute us), make run's scheduling, rounds interleaved; baseline: the previous step")
     rounds = 3
     runs = {"previous: pure step, fresh arrays": {"previous": True},
             "now, no rehearsal": {"rehearse": False},
             "now, rehearsed (make run)": {}}
     got = {name: [] for name in runs}
-    for _ in range(rounds):
+    for k in range(rounds):
         for name, kw in runs.items():
-            got[name].append(in_process(cfg, model, spin, rt, **kw))
+            s, cond = conditions(lambda: in_process(cfg, model, spin, rt, **kw))
+            got[name].append(s)
+            print(f"    round {k + 1} {name:34s} compute p50 {s['compute_us']['p50']:6.1f} p99 "
+                  f"{s['compute_us']['p99']:6.1f}   ({cond})")
     base = {q: np.median([s["compute_us"][q] for s in got["previous: pure step, fresh arrays"]]) for q in ("p50", "p99")}
     for name, ss in got.items():
         q = {k: np.median([s["compute_us"][k] for s in ss]) for k in ("p50", "p99")}
@@ -223,16 +245,17 @@ def main() -> None:
     print("\nover Zenoh (controller process, this process as the valve), rounds interleaved")
     rounds = 3
     rtt = {"bare Zenoh echo (baseline)": [], "loop, trigger period": [], "loop, trigger measurement": []}
-    for _ in range(rounds):
+    for k in range(rounds):
         for name in rtt:
             if name.startswith("bare"):
-                s, x = zenoh_round_trip(cfg, echo=True)
+                (s, x), cond = conditions(lambda: zenoh_round_trip(cfg, echo=True))
             else:
                 trigger = name.rsplit(" ", 1)[1]
-                s, x = zenoh_round_trip(cfg, trigger=trigger)
+                (s, x), cond = conditions(lambda: zenoh_round_trip(cfg, trigger=trigger))
                 print(f"  trigger {trigger:11s} controller lateness us {pct(s['lateness_us'])}   compute us "
                       f"{pct(s['compute_us'])}   overruns {s['overruns']} of {s['steps'] + s['overruns']}")
             rtt[name].append(np.percentile(x, [50, 99]) * 1e6)
+            print(f"    round {k + 1} {name:28s} round trip p50 {rtt[name][-1][0]:6.0f} us   ({cond})")
     e50 = np.median([r[0] for r in rtt["bare Zenoh echo (baseline)"]])
     ratio = {}
     for name, r in rtt.items():
