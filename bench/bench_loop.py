@@ -268,6 +268,9 @@ def main() -> None:
           f"({'met' if m <= 1.5 else 'NOT met'}); trigger period {ratio['loop, trigger period']:.2f}x")
     print("  (trigger period reads its inputs once per period: the echo's round trip plus up to one period plus "
           "the step's compute; trigger measurement steps in the measurement's own Zenoh callback)")
+    print("  (trigger period's round trip depends on the phase between this valve's clock and the loop's, set by "
+          "when each process started: it ranges over a period from run to run; compare the controller's compute "
+          "and lateness between runs, not that round trip)")
 
 
 if __name__ == "__main__":
