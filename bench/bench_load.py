@@ -48,6 +48,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: Flooders (a Zenoh peer connected to the flooded process): valid references at 100 Hz when REF, and a flood on
@@ -135,6 +136,61 @@ def stale_during(rec: str, end_s: float) -> int:
     return n
 
 
+def overrun_times(rec: str, period_s: float) -> list[tuple[float, int]]:
+    """(t_s of the step before the gap, deadlines missed) for every gap of more than 1.5 periods between two
+    recorded steps (a row's t_s is its deadline)."""
+    t = []
+    with open(rec) as fh:
+        next(fh)
+        for line in fh:
+            head = line.split(",", 1)[0]
+            try:
+                t.append(float(head))
+            except ValueError:
+                continue
+    return [(a, int(round((b - a) / period_s)) - 1) for a, b in zip(t, t[1:]) if b - a > 1.5 * period_s]
+
+
+#: /proc/stat counts steal in 1/USER_HZ units (10 ms): a steal shows when its sum crosses a multiple of that,
+#: up to this long after it happened. A window of steal is widened back by it (and by the clock offset's slack).
+STEAL_TICK_S = 0.010
+CLOCK_SLACK_S = 0.003
+
+
+def stolen_windows(samples: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Intervals of the bench's clock in which the host's steal counter rose (``samples``: (monotonic s, steal
+    ms) every poll), each widened back by :data:`STEAL_TICK_S` and both ways by :data:`CLOCK_SLACK_S`."""
+    return [(m0 - STEAL_TICK_S - CLOCK_SLACK_S, m1 + CLOCK_SLACK_S)
+            for (m0, s0), (m1, s1) in zip(samples, samples[1:]) if s1 > s0]
+
+
+def attribute_steal(overruns: list[tuple[float, int]], windows: list[tuple[float, float]], offset_s: float,
+                    span: tuple[float, float]) -> tuple[int, float]:
+    """(overruns during a window of host steal, share of the run's time those windows cover, %).
+    ``offset_s``: the controller's t_s plus this is the bench's monotonic clock."""
+    stolen = sum(n for t, n in overruns if any(a <= t + offset_s <= b for a, b in windows))
+    lo, hi = span
+    covered, end = 0.0, lo
+    for a, b in sorted(windows):
+        a, b = max(a, end), min(b, hi)
+        if b > a:
+            covered += b - a
+            end = b
+    return stolen, 100.0 * covered / max(1e-9, hi - lo)
+
+
+def proc_counters(pid: int) -> tuple[int, int]:
+    """(major page faults of process ``pid``, involuntary context switches of its main thread, where the loop
+    runs); (-1, -1) once it is gone."""
+    try:
+        majflt = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[9])
+        status = open(f"/proc/{pid}/status").read()
+        nvcs = int(re.search(r"nonvoluntary_ctxt_switches:\s+(\d+)", status).group(1))
+        return majflt, nvcs
+    except (OSError, AttributeError, IndexError, ValueError):
+        return -1, -1
+
+
 def host_steal_ms() -> float:
     """Time the hypervisor kept this VM's CPUs from running although they had work, summed over CPUs, ms
     (``steal`` of /proc/stat, in clock ticks; 0 on bare metal)."""
@@ -197,6 +253,8 @@ def scheduling_task(task_dir: str) -> int:
 
 def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=None) -> dict:
     cfg = config(*sched)
+    with open(cfg, "rb") as fh:
+        period_s = 1.0 / tomllib.load(fh)["loop"]["rate_hz"]
     ep, node_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
     rec, summ, nj = (os.path.join(tmp, f"{name}.{x}") for x in ("csv", "s.json", "n.json"))
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
@@ -220,12 +278,18 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
         if flood:
             hog_procs.append(subprocess.Popen([sys.executable, "-c", FLOOD, node_ep if at_node else ep, *flood,
                                                str(duration + 30), "-" if at_node else "ref"], **start))
-        steal0 = None
+        steal0, samples, offset_s, counters0 = None, [], None, None
         while (t_rec := last_t(rec)) < duration - 0.03 and ctrl.poll() is None:
+            now = time.monotonic()
             if steal0 is None and t_rec >= 0:  # the controller's first step
                 steal0 = host_steal_ms()
+                offset_s = now - t_rec  # the row was flushed at most one poll (2 ms) before: CLOCK_SLACK_S
+                counters0 = proc_counters(ctrl.pid), proc_counters(node.pid)
+            if steal0 is not None:
+                samples.append((now, host_steal_ms()))
             time.sleep(0.002)
         steal_ms = host_steal_ms() - steal0 if steal0 is not None else None
+        counters1 = proc_counters(ctrl.pid), proc_counters(node.pid)
         node.send_signal(signal.SIGTERM)
         _, c_err = ctrl.communicate(timeout=120)
         n_out, n_err = node.communicate(timeout=120)
@@ -249,6 +313,17 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
            "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]},
            "bad_commands": n.get("bad_commands"), "stalled": {f["kind"]: f["count"] for f in s["faults"]}.get("stalled", 0),
            "steal_ms": steal_ms, "node_gap_max_ms": n.get("publish_gap_ms", {}).get("max")}
+    gaps = overrun_times(rec, period_s)
+    if samples and offset_s is not None:
+        stolen, covered_pct = attribute_steal(gaps, stolen_windows(samples), offset_s,
+                                              (samples[0][0], samples[-1][0]))
+    else:
+        stolen, covered_pct = 0, 0.0
+    total = max(1, s["steps"] + s["overruns"])
+    row.update(stolen_overruns=stolen, steal_cover_pct=covered_pct,
+               adjusted_overrun_pct=100.0 * max(0, s["overruns"] - stolen) / total,
+               majflt=[b[0] - a[0] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
+               preempted=[b[1] - a[1] if counters0 else None for a, b in zip(counters0 or counters1, counters1)])
     if flood:  # the flooded process: its share of the configured rate and its longest step
         if at_node:
             row["flooded_rate_pct"] = 100.0 * n["steps"] / max(1, n["steps"] + n["overruns"])
@@ -313,17 +388,29 @@ def main() -> None:
           "measurements the node published (a stale fault with a node gap as long is the node standing still)")
     print("host steal: CPU time the hypervisor withheld from this VM during the case (both vCPUs frozen: every "
           "loop misses its deadlines then, whatever its priority; 0 on bare metal)")
+    print(f"stolen: overruns that fell in a window where the host's steal counter rose (/proc/stat counts steal in "
+          f"{STEAL_TICK_S * 1e3:.0f} ms units, so each window reaches back that far); steal cover: the share of the "
+          f"run those windows span (the adjustment means little when it is large); adjusted: overruns minus stolen. "
+          f"The raw figure is the one the issue counts")
+    print("major faults: page faults that read from disk, controller/node; preempted: involuntary context switches "
+          "of the loop's thread, controller/node (a SCHED_FIFO thread is preempted only by higher real-time "
+          "priorities, the kernel's own work, or a wait it did not choose)")
     hdr = ("case", "rep", "rate Hz", "steps", "overruns", "overrun %", "stale", "stalled", "node steps", "fresh cmd %",
-           "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "node gap max ms", "host steal ms")
+           "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "node gap max ms", "host steal ms",
+           "stolen", "steal cover %", "adjusted overrun %", "major faults", "preempted")
     keys = ("case", "rep", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "stalled", "node_steps",
             "fresh_cmd_pct", "cmd_timeouts", "rt_p50_us", "rt_p99_us", "compute_max_us", "lateness_max_us",
-            "node_gap_max_ms", "steal_ms")
+            "node_gap_max_ms", "steal_ms", "stolen_overruns", "steal_cover_pct", "adjusted_overrun_pct", "majflt",
+            "preempted")
     print(" | ".join(hdr))
     for r in rows:
         cells = []
         for k in keys:
             v = r[k]
-            cells.append("-" if v is None else (f"{v:.2f}" if isinstance(v, float) and k in ("overrun_pct", "rate_hz")
+            if isinstance(v, list):
+                v = "/".join("-" if x is None else str(x) for x in v)
+            cells.append("-" if v is None else (f"{v:.2f}" if isinstance(v, float) and k in ("overrun_pct", "rate_hz", "steal_cover_pct",
+                                                                                              "adjusted_overrun_pct")
                                                 else f"{v:.0f}" if isinstance(v, float) else str(v)))
         print(" | ".join(cells))
     floods = [r for r in rows if "flooded_rate_pct" in r]
@@ -340,14 +427,16 @@ def main() -> None:
     names = list(dict.fromkeys(r["case"] for r in rows))
     if a.repeat > 1:
         print(f"over {a.repeat} repetitions | overrun % median | overrun % worst | stale total | cmd timeouts total "
-              f"| host steal ms median")
+              f"| host steal ms median | adjusted overrun % median | adjusted overrun % worst")
         for name in names:
             rs = [r for r in rows if r["case"] == name]
             pct = sorted(r["overrun_pct"] for r in rs)
             steal = [r["steal_ms"] for r in rs if r["steal_ms"] is not None]
+            adj = sorted(r["adjusted_overrun_pct"] for r in rs)
             print(f"{name} | {statistics.median(pct):.3f} | {pct[-1]:.3f} | {sum(r['stale'] for r in rs)} | "
                   f"{sum(r['cmd_timeouts'] or 0 for r in rs)} | "
-                  f"{statistics.median(steal) if steal else float('nan'):.0f}")
+                  f"{statistics.median(steal) if steal else float('nan'):.0f} | {statistics.median(adj):.3f} | "
+                  f"{adj[-1]:.3f}")
     for rep in range(1, a.repeat + 1):
         of = {r["case"]: r for r in rows if r["rep"] == rep}
         idle, shipped, base = (of.get(k) for k in ("idle, loop FIFO + io FIFO", "hogs, loop FIFO + io FIFO",
@@ -363,10 +452,14 @@ def main() -> None:
         if shipped is not None:  # issue 11's condition, with the shipped measures
             met = shipped["stale"] == 0 and shipped["cmd_timeouts"] == 0 and shipped["overrun_pct"] <= 0.1
             span = f"{a.duration:g} s" + ("" if a.duration == 20 else ", not the issue's 20 s")
+            met_adj = shipped["stale"] == 0 and shipped["cmd_timeouts"] == 0 and shipped["adjusted_overrun_pct"] <= 0.1
             print(f"[{rep}] done when (hogs on every core, {span}, the shipped measures): stale "
                   f"{shipped['stale']} (0), command timeouts {shipped['cmd_timeouts']} (0), overruns "
-                  f"{shipped['overrun_pct']:.3f} % (<= 0.1 %): {'met' if met else 'NOT met'}; host steal "
-                  f"{shipped['steal_ms'] if shipped['steal_ms'] is not None else float('nan'):.0f} ms")
+                  f"{shipped['overrun_pct']:.3f} % (<= 0.1 %): {'met' if met else 'NOT met'} (raw); host steal "
+                  f"{shipped['steal_ms'] if shipped['steal_ms'] is not None else float('nan'):.0f} ms, "
+                  f"{shipped['stolen_overruns']} of {shipped['overruns']} overruns in its windows "
+                  f"({shipped['steal_cover_pct']:.1f} % of the run): adjusted {shipped['adjusted_overrun_pct']:.3f} %: "
+                  f"{'met' if met_adj else 'NOT met'} with the host's steal set aside")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

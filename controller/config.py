@@ -39,6 +39,9 @@ FlowLpm = Annotated[float, msgspec.Meta(gt=0.0, le=1e5)]
 #: Longest valve lag or delay the controllers model, s (the effects' own limits: plant_sim.effects).
 Seconds10 = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
 Seconds60 = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
+#: A safety timeout, ms: the watchdog's and the valve node's. Finite is not enough: 1e308 ms would switch
+#: the safety off as surely as NaN did, so at most 10 s (a dead controller must not hold a valve open longer).
+TimeoutMs = Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)]
 
 
 class _Section(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -47,7 +50,7 @@ class _Section(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 class Loop(_Section):
     rate_hz: RateHz = 1000.0
-    stale_ms: Positive = 50.0             # watchdog: no measurement for this long -> safe state
+    stale_ms: TimeoutMs = 50.0            # watchdog: no measurement for this long -> safe state
     ref_stale_ms: Positive = 500.0
     safe_duty_pct: Percent = 0.0
     flow_max_lpm: FlowLpm = 200.0
@@ -112,7 +115,7 @@ class Zenoh(_Section):
 
 class ValveNode(_Section):
     rate_hz: RateHz = 1000.0
-    command_timeout_ms: Positive = 100.0  # no cmd/duty for this long -> the node closes its valve
+    command_timeout_ms: TimeoutMs = 100.0  # no cmd/duty for this long -> the node closes its valve
     aux_hz: NonNegative = 50.0            # meas/supply and meas/coil_temp rate (0: not published)
 
 
@@ -262,6 +265,9 @@ def _check_profile(profile: dict, flow_max_lpm: float, source: str) -> None:
     the loop's range (the loop clamps references to ``[0, flow_max_lpm]``) and a plausible breath rate."""
     from plant_sim.protocols import BreathProfile
 
+    for name, v in profile.items():  # a TOML boolean is no number, though Python's bool is an int
+        if isinstance(v, bool):
+            raise InputError(f"{source}: profile.{name}: expected a number or a word, got {v!r}")
     try:
         p = BreathProfile(**profile)
     except TypeError as exc:

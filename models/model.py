@@ -125,10 +125,17 @@ class FittedModel:
             raise InputError(f"{source}: kind: {kind!r} is not a model kind (one of {', '.join(forward_kinds())})")
         f = convert(d, KINDS[kind].file, source)
         # the checked params, with the schema's defaults for the fields a file may leave out
-        core = core_class(kind).from_params(msgspec.to_builtins(f.params))
-        inverse = None
-        if getattr(f, "inverse", None) is not None:
-            inverse = core_class(f.inverse.kind).from_params(msgspec.to_builtins(f.inverse.params))
+        from .inverse_pi import NotInvertible
+
+        try:
+            field = "params"
+            core = core_class(kind).from_params(msgspec.to_builtins(f.params))
+            inverse = None
+            if getattr(f, "inverse", None) is not None:
+                field = "inverse.params"
+                inverse = core_class(f.inverse.kind).from_params(msgspec.to_builtins(f.inverse.params))
+        except NotInvertible as exc:  # a kind whose construction inverts its parameters (pi-mod's inverse)
+            raise InputError(f"{source}: {field}: {exc}") from None
         return cls(
             kind=kind,
             core=core,

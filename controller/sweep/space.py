@@ -83,12 +83,21 @@ def _flatten(block: dict, prefix: str = "") -> dict:
     return out
 
 
+def _finite(v: int | float, where: str) -> float:
+    """``v`` as a finite float (TOML integers have no size limit: 10**400 does not fit a float)."""
+    try:
+        x = float(v)
+    except OverflowError:
+        raise InputError(f"{where}: {str(v)[:24]}... is too large for a float") from None
+    if not np.isfinite(x):
+        raise InputError(f"{where}: not finite")
+    return x
+
+
 def _number_or_text(v, where: str):
     if isinstance(v, bool) or not isinstance(v, (int, float, str)):
         raise InputError(f"{where}: expected a number or a string, got {v!r}")
-    if isinstance(v, (int, float)) and not np.isfinite(v):
-        raise InputError(f"{where}: not finite")
-    return float(v) if isinstance(v, (int, float)) else v
+    return _finite(v, where) if isinstance(v, (int, float)) else v
 
 
 def _range(v: dict, where: str) -> tuple[str, float, float]:
@@ -98,9 +107,7 @@ def _range(v: dict, where: str) -> tuple[str, float, float]:
     if not (isinstance(lohi, list) and len(lohi) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                                               for x in lohi)):
         raise InputError(f"{where}: {kind} = [lo, hi] with two numbers, got {lohi!r}")
-    lo, hi = float(lohi[0]), float(lohi[1])
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise InputError(f"{where}: {kind} range [{lo:g}, {hi:g}] needs finite numbers")
+    lo, hi = (_finite(x, f"{where}: {kind} range") for x in lohi)
     if not lo <= hi or (kind == "log" and lo <= 0):
         raise InputError(f"{where}: {kind} range [{lo:g}, {hi:g}] needs lo <= hi" + (" and lo > 0" if kind == "log" else ""))
     return kind, lo, hi
