@@ -780,6 +780,19 @@ def preload(root: str) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def report(results: list[Result], group, json_path: str | None) -> None:
+    """Counts per outcome for each ``group(case name)``; every case's outcome to ``json_path`` if given."""
+    by: dict = {}
+    for r in results:
+        by.setdefault(group(r.case.name), {o: 0 for o in OUTCOMES})[r.outcome] += 1
+    for name, c in sorted(by.items()):
+        print(f"  {name:24s} " + " ".join(f"{o} {n:4d}" for o, n in c.items()))
+    if json_path:
+        with open(json_path, "w") as fh:
+            json.dump([{"case": r.case.name, "outcome": r.outcome, "rc": r.rc, "stderr": r.stderr[-500:]}
+                       for r in results], fh, indent=1)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", default=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -806,17 +819,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{len(results)} cases ({sum(not r.case.legal for r in results)} bad inputs, "
           f"{sum(r.case.legal for r in results)} legal) on {root}: "
           + ", ".join(f"{o} {n}" for o, n in counts.items()))
-    by_verb: dict = {}
-    for r in results:
-        verb = r.case.name.rsplit("/", 1)[-1] if not r.case.name.startswith("args/") else \
-            r.case.name.split("/", 1)[1].split()[0]
-        by_verb.setdefault(verb, {o: 0 for o in OUTCOMES})[r.outcome] += 1
-    for verb, c in sorted(by_verb.items()):
-        print(f"  {verb:18s} " + " ".join(f"{o} {n:3d}" for o, n in c.items()))
-    if a.json:
-        with open(a.json, "w") as fh:
-            json.dump([{"case": r.case.name, "outcome": r.outcome, "rc": r.rc, "stderr": r.stderr[-500:]}
-                       for r in results], fh, indent=1)
+    report(results, lambda name: name.rsplit("/", 1)[-1] if not name.startswith("args/") else
+           name.split("/", 1)[1].split()[0], a.json)
     return 0
 
 

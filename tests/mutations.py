@@ -22,7 +22,7 @@ Whether a value is legal is not known here (a negative ``offset`` is, a
 negative ``rate_hz`` is not), so an exit 0 is reported as ``accepted`` for a
 person to judge; tracebacks, several lines and hangs are failures whatever
 the value. ``python -m tests.mutations [--jobs N] [--timeout S] [-k WORD]
-[--sample N]`` prints the counts and every case that did not end cleanly.
+[--sample N] [--seed S]`` prints the counts and every case that did not end cleanly.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ import random
 import re
 import sys
 
-from tests.battery import OUTCOMES, Case, _recording, preload, run_battery
+from tests.battery import OUTCOMES, Case, _recording, preload, report, run_battery
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -307,13 +307,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--timeout", type=float, default=60.0)
     ap.add_argument("-k", default="")
-    ap.add_argument("--sample", type=int, default=0, help="a random sample of this many cases (seed 0)")
+    ap.add_argument("--sample", type=int, default=0, help="a random sample of this many cases")
+    ap.add_argument("--seed", type=int, default=0, help="of the sample")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     os.chdir(ROOT)
     selected = [c for c in cases() if a.k in c.name]
     if a.sample:
-        selected = random.Random(0).sample(selected, min(a.sample, len(selected)))
+        selected = random.Random(a.seed).sample(selected, min(a.sample, len(selected)))
     print(f"{len(selected)} cases", flush=True)
     preload(ROOT)
 
@@ -325,16 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     results = run_battery(selected, ROOT, a.timeout, a.jobs, progress)
     counts = {o: sum(r.outcome == o for r in results) for o in OUTCOMES}
     print(f"\n{len(results)} cases: " + ", ".join(f"{o} {n}" for o, n in counts.items()))
-    by = {}
-    for r in results:
-        kind = r.case.name.split("/", 1)[0] + "/" + r.case.name.rsplit("/", 1)[-1]
-        by.setdefault(kind, {o: 0 for o in OUTCOMES})[r.outcome] += 1
-    for kind, c in sorted(by.items()):
-        print(f"  {kind:24s} " + " ".join(f"{o} {n:4d}" for o, n in c.items()))
-    if a.json:
-        with open(a.json, "w") as fh:
-            json.dump([{"case": r.case.name, "outcome": r.outcome, "rc": r.rc, "stderr": r.stderr[-400:]}
-                       for r in results], fh, indent=1)
+    report(results, lambda name: name.split("/", 1)[0] + "/" + name.rsplit("/", 1)[-1], a.json)
     return 0
 
 
