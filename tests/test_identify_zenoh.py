@@ -67,14 +67,13 @@ def sessions(tmp_path_factory):
 
     ``full``: a 10 s protocol to its end. Once it has let the valve go (its
     session over, its liveliness token gone) and fits, ``interrupted`` starts
-    and gets Ctrl-C in its sweep, with ``cmds`` the duty the valve received since.
+    and gets Ctrl-C in its sweep, with ``cmds`` the duty commanded since.
     """
     tmp = tmp_path_factory.mktemp("identify_zenoh")
     cfg = twin_config(tmp)
     node, ep = node_and_endpoint(cfg, tmp)
     watcher = client_session(ep)
-    cmds, alive = [], []
-    sub = watcher.declare_subscriber("vent/valve/insp/cmd/duty", lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
+    cmds, alive, sub = [], [], None
     tok = watcher.liveliness().declare_subscriber("vent/valve/insp/alive/controller",
                                                   lambda s: alive.append(s.kind == zenoh.SampleKind.PUT), history=True)
     res, procs = {}, []
@@ -83,7 +82,9 @@ def sessions(tmp_path_factory):
         procs.append(full)
         wait_for(lambda: alive and alive[-1], "the first identification's token", [full])
         wait_for(lambda: not alive[-1], "the first identification letting the valve go")  # at its exit at the latest
-        n_full = len(cmds)
+        # the commands from here on (not during the full protocol: a 1 kHz callback here would load the machine)
+        sub = watcher.declare_subscriber("vent/valve/insp/cmd/duty",
+                                         lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
         # its recording is all it is checked on: no stall of a busy machine may stop it before the Ctrl-C
         ctrl_c = identify(twin_config(tmp, "patient", stale_ms=5000.0), ep, 30, tmp / "interrupted")
         procs.append(ctrl_c)
@@ -92,13 +93,14 @@ def sessions(tmp_path_factory):
         ctrl_c.send_signal(signal.SIGINT)
         _, se = ctrl_c.communicate(timeout=60)
         time.sleep(0.3)
-        res["interrupted"] = (ctrl_c.returncode, se, tmp / "interrupted", cmds[n_full:])
+        res["interrupted"] = (ctrl_c.returncode, se, tmp / "interrupted", cmds)
         _, se = full.communicate(timeout=280)
         res["full"] = (full.returncode, se, tmp / "full")
     finally:
         for p in procs:
             stop(p)
-        sub.undeclare()
+        if sub is not None:
+            sub.undeclare()
         tok.undeclare()
         watcher.close()
         stop(node)
@@ -115,7 +117,8 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(sessions):
     # the delay a loop sees is the valve's plus the transport's at that moment (within its 99th percentile)
     rt_s = sessions["node"]["round_trip_us"]["p99"] * 1e-6
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
-    assert summ["duration_s"] == pytest.approx(10.0, abs=0.1)
+    # 10 s of valve time; a stall of the machine across the end carries the last step past it by the periods it missed
+    assert 10.0 - 0.1 <= summ["duration_s"] <= 10.0 + 0.1 + summ["overruns"] * 1e-3
     dyn = summ["dynamics"]
     if dyn["clean"]:  # a step read without a stall of this machine
         assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)
