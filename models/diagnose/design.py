@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from .. import play
 from ..model import FittedModel
@@ -335,12 +335,19 @@ def clip_of(chain: dict) -> float | None:
     return min(clips) if clips else None
 
 
-def _clip_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
-    """Rows the chain's saturation leaves unclipped (by the base's own prediction at the sensor)."""
+def _fit_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
+    """Rows a PI refitted under ``chain`` may fit on, as :func:`build` leaves them to a design: those
+    the chain's saturation leaves unclipped, less the shut rows where the base has its valve closed
+    too (by the base's own prediction at the sensor).
+
+    The same rows whether or not a column is fitted jointly with the PI: a test's gain is then its
+    column's, not that of a PI fitted on other rows (on breaths resting below the valve's opening,
+    two thirds of the rows are shut, and which of them a fit keeps moved the held-out error by 10 %).
+    """
+    ref = at_sensor(base.predict(sig, chain), sig, chain)
     c = clip_of(chain)
-    if c is None:
-        return np.ones(len(sig), dtype=bool)
-    return at_sensor(base.predict(sig, chain), sig, chain) < c
+    ok = np.ones(len(sig), dtype=bool) if c is None else ref < c
+    return ok & ~(base.shut(sig) & (ref <= 0.0))
 
 
 def at_sensor(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
@@ -383,7 +390,12 @@ class CVResult:
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     p = A.shape[0]
     lam = RIDGE * max(np.trace(A) / p, 1e-12)
-    return cho_solve(cho_factor(A + lam * np.eye(p)), b)
+    try:
+        return cho_solve(cho_factor(A + lam * np.eye(p)), b)
+    except LinAlgError:
+        # two columns equal to rounding (a fold's Gram matrix subtracted from the whole leaves a
+        # difference of near-equal sums): the minimum-norm solution
+        return np.linalg.lstsq(A + lam * np.eye(p), b, rcond=1e-12)[0]
 
 
 def _gram(U: np.ndarray, V: np.ndarray) -> np.ndarray:
@@ -532,7 +544,7 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
         H = d.X[:, [i for i, w in enumerate(d.names) if w in chain and VOCABULARY[w].joint_with_pi]]
         fit_ok = d.fit_ok
     else:  # the exact laws are in the operators: no column to fit jointly
-        H, fit_ok = np.zeros((len(sig), 0)), _clip_rows(base, sig, chain)
+        H, fit_ok = np.zeros((len(sig), 0)), _fit_rows(base, sig, chain)
     # the shut rows of a dead zone say nothing of the PI
     fr = rows & fit_ok & is_open(sig, chain)
     m = base.model

@@ -190,6 +190,11 @@ class Word:
         return None
 
 
+#: Largest physical steady coil rise at 55 % duty (K): the rise goes with duty squared, so at the
+#: full duty a proportional valve is rated to hold continuously the coil would be (100/55)^2 = 3.3 x
+#: as warm, 200 K above a 25 C ambient at this bound, the hot-spot limit of class R insulation
+#: (220 C). A larger rise is a warm start or a slow drift read as heat.
+MAX_RISE55_K = 60.0
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
 #: Duty band (%) above a cracking duty where the flow must have jumped.
@@ -262,14 +267,14 @@ class CoilHeating(Word):
         # and rise and time constant trade off along a narrow valley: a grid of the exact law
         # (and a warm or a cold start: the screen's choice is unreliable when its column saturates)
         g = self.grid(sig, base)
-        rises = (5.0, 12.0, 30.0, 70.0, 160.0)
+        rises = (4.0, 10.0, 20.0, 35.0, 55.0)
         return [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
                 for r in rises for t in g["tau_s"] for s in g["start"]]
 
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
             return {"copper_law_ratio": (0.2, 5.0)}
-        return {"rise55_k": (0.2, 250.0), "tau_s": (10.0, 4.0 * _span(sig))}
+        return {"rise55_k": (0.2, MAX_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig))}
 
     def rise_k(self, sig: Signals, params: dict) -> np.ndarray:
         """Coil temperature rise since the first sample (K) times the copper-law ratio: measured or modelled."""
@@ -529,7 +534,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         {"rise55_k": "K (steady rise at 55 % duty)", "tau_s": "s", "start": "fraction of the steady rise at t = 0",
          "copper_law_ratio": "- (measured temperature: 1 = copper's 0.393 %/K)", "coil_temp_span_k": "K",
          "ambient_c": "deg C"},
-        {"rise55_k": (0.05, 250.0), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
+        {"rise55_k": (0.05, MAX_RISE55_K), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
         joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty",
         ratio_of={"rise55_k": "tau_s"}),
     SupplyPressure(
