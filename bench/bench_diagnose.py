@@ -62,7 +62,7 @@ def run_case(case):
     t0 = time.perf_counter()
     d = diagnose_response(rec, model)
     return case, d.baseline.r, [(f.effect, f.holdout_rmse_before, f.holdout_rmse_after, f.alternative_to)
-                                for f in d.findings], time.perf_counter() - t0
+                                for f in d.findings], time.perf_counter() - t0, set(d.model["not_identifiable"])
 
 
 def report(title: str, results: list, wall: float, workers: int) -> None:
@@ -73,7 +73,8 @@ def report(title: str, results: list, wall: float, workers: int) -> None:
     confusion = defaultdict(Counter)
     free_total, free_fp = 0, []
     ratios, worse = [], []
-    for case, r, found, _ in results:
+    said = Counter()
+    for case, r, found, _, unseen in results:
         named = [f[0] for f in found]
         for f in found:
             ratios.append(f[2] / f[1])
@@ -94,6 +95,9 @@ def report(title: str, results: list, wall: float, workers: int) -> None:
             as_alt[w] += w in alternatives
             by_size[(w, size)]["n"] += 1
             by_size[(w, size)]["hit"] += w in named
+            # not named, and the diagnosis said why: the excitation cannot show it (counted as a miss
+            # in the detection rate, and apart)
+            said[size] += w not in named and w in unseen
             for v in named or ["-"]:
                 confusion[w][v] += 1
     print(f"\n=== {title}: {len(results)} recordings in {wall:.0f} s ({workers} workers)")
@@ -112,6 +116,8 @@ def report(title: str, results: list, wall: float, workers: int) -> None:
             f"{100 * sum(by_size[(w, s)]['hit'] for w in WORDS) / max(1, sum(by_size[(w, s)]['n'] for w in WORDS)):>11.1f}%"
             for s in sizes)
         print(f"  {'all':24s}{per_size}{100 * all_d / all_t:8.1f} % (alt {sum(as_alt.values())})")
+        print("  of the misses, reported as not identifiable on the excitation (the diagnosis says it cannot see "
+              "the word there, rather than guessing): " + ", ".join(f"{said[s]} at {s:g}x" for s in sizes))
     print(f"\nfalse findings: {len(free_fp)}/{free_total} effect-free recordings with a finding")
     for label, named in free_fp[:10]:
         print(f"  {named} in {label}")

@@ -214,3 +214,34 @@ def test_where_names_the_branch_and_region():
 def test_calibrated_margin_exceeds_every_effect_free_gain():
     m = calibrate({"creep": [0.01, 0.03, -0.2], "saturation": []})
     assert m.gain["creep"] > 0.03 and m.gain["saturation"] > 0
+
+
+
+def test_reference_is_fitted_on_the_rows_a_joint_test_fits_on():
+    # breaths resting below the valve's closing: most rows are shut. A PI refitted jointly with an
+    # effect's column (creep's) fits on the same rows as the reference PI, so without that column it
+    # predicts the held-out folds as well as the reference (a joint test's gain is its column's)
+    from models.diagnose.design import Design, fit_baseline
+    from models.diagnose.detectors import design, reference
+    from models.diagnose.signals import work_signals
+    from models.recording import Recording
+
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from diagnose_suite import PLANT_TOML, excitation
+    from plant_sim.plant import Plant, load_plant
+
+    duty = excitation("breaths", 5, 30.0, rate_hz=100.0, duration_s=90.0)
+    cols = Plant(load_plant(PLANT_TOML, {}), 100.0, seed=5).simulate(duty)
+    t, flow = cols["t_s"], cols["flow_lpm"]
+    sig = work_signals(Recording("<breaths>", {"t_s": np.asarray(t, float), "duty_pct": duty,
+                                               "flow_lpm": np.asarray(flow, float)}), None)
+    folds = make_folds(sig.t_s)
+    cur, before = reference(fit_baseline(sig, folds), sig, folds)
+    assert cur.shut(sig).mean() > 0.5
+    d, _ = design("creep", cur, sig, {"creep": {"tau_s": 5.0}}, folds)
+    keep = [i for i, w in enumerate(d.names) if w != "creep"]
+    without = Design(d.F, d.X[:, keep], tuple(d.names[i] for i in keep), d.fit_ok, d.clip_hi, d.floor)
+    assert cross_validate(without, sig.flow_lpm, folds).test.sum() == pytest.approx(before.test.sum(), rel=0.01)

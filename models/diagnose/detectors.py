@@ -38,7 +38,7 @@ from .calibrate import Margins
 from .design import Base, CVResult, Design, build, cross_validate, fit_final, solve, unbend
 from .folds import Folds
 from .signals import Signals, noise_lpm
-from .trace import ALTERNATIVE, BELOW_MARGIN, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
+from .trace import ALTERNATIVE, BELOW_MARGIN, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
 from .words import DYNAMIC, VOCABULARY, WORDS, Word
 
 #: Most effects named in one recording.
@@ -243,13 +243,26 @@ def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base
     for p in starts:
         groups.setdefault(tuple(sorted((k, v) for k, v in p.items() if k not in box)), []).append(p)
     refined = [refine(w.word, chain, min(g, key=sse), base, sig, folds) for g in groups.values()]
+    # a setting whose refinement ran onto a bound of its box has not found the law's minimum (a coil
+    # read as warm from the start trades its rise against its time constant up to the largest rise):
+    # the settings refined to the inside are compared, if any
+    inside = [p for p in refined if _inside(p, box)] or refined
     full = _subsample(folds.train)
-    params = refined[0] if len(refined) == 1 else min(refined, key=lambda p: sse(p, full))
+    params = inside[0] if len(inside) == 1 else min(inside, key=lambda p: sse(p, full))
     d, b = design(w.word, base, sig, {**chain, w.word: params}, folds)
     cv = cross_validate(d, sig.flow_lpm, folds)
     c = _candidate(w.word, params, cv, before, b if base.refit else None, "exact")
     c.refined = True
     return c
+
+
+#: A refined parameter within this factor of a bound of its box is at the bound.
+AT_BOUND = 1.02
+
+
+def _inside(params: dict, box: dict) -> bool:
+    """Whether every parameter of ``params`` refined within ``box`` stays off its bounds."""
+    return all(lo * AT_BOUND < params[k] < hi / AT_BOUND for k, (lo, hi) in box.items() if k in params)
 
 
 def _coef(word: str, d: Design, theta: np.ndarray) -> float | None:
@@ -436,6 +449,19 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         accepted, refused = _first_acceptable(passing, sel.chain, cur, sig, folds, noise)
         for c, outcome, why in refused:
             sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, outcome, why))
+        masking = _masking(refused, accepted)
+        if masking is not None:
+            # a stronger law explains the residual but the recording lacks the rows that would show
+            # it: the weaker one cannot be asserted (it may be taking up the other's residual), and
+            # the stronger is said to be not identifiable here rather than guessed
+            c, why = masking
+            sel.not_identifiable[c.word] = f"not identifiable on this excitation: it fits best but {why}"
+            a = accepted[0]
+            sel.trace.append(_decision(a, rnd, _need(a, sel, margins), margins, MASKED,
+                                       f"{c.word} explains more of the same residual (held-out gain "
+                                       f"{100 * c.gain:.1f} % against {100 * a.gain:.1f} %) and this recording "
+                                       f"cannot show {c.word}'s law"))
+            break
         if accepted is None:
             break
         c, sel.chain, phys = accepted
@@ -545,6 +571,15 @@ def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds
             continue
         return found, refused
     return None, refused
+
+
+def _masking(refused: list, accepted) -> tuple | None:
+    """``(candidate, why)`` of the strongest refused-as-unsupported candidate that gains more than
+    the ``accepted`` one, or None."""
+    if accepted is None:
+        return None
+    over = [(c, why) for c, outcome, why in refused if outcome == UNSUPPORTED and c.gain > accepted[0].gain]
+    return max(over, key=lambda cw: cw[0].gain) if over else None
 
 
 def _alternative(c: Candidate, phys: dict, cands: dict, passing: list, sel: Selection, prev: Base, sig: Signals,

@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 #: Outcomes of a decision.
-NAMED, ALTERNATIVE, BELOW_MARGIN, NOT_PHYSICAL, UNSUPPORTED, UNCONFIRMED = (
-    "named", "alternative", "below margin", "not physical", "unsupported", "unconfirmed")
+NAMED, ALTERNATIVE, BELOW_MARGIN, NOT_PHYSICAL, UNSUPPORTED, UNCONFIRMED, MASKED = (
+    "named", "alternative", "below margin", "not physical", "unsupported", "unconfirmed", "masked")
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class Decision:
         ``"exact"`` (the nonlinear law, refined) or ``"linearized"`` (the first-order columns).
     outcome : str
         One of :data:`NAMED`, :data:`ALTERNATIVE`, :data:`BELOW_MARGIN`, :data:`NOT_PHYSICAL`,
-        :data:`UNSUPPORTED`, :data:`UNCONFIRMED`.
+        :data:`UNSUPPORTED`, :data:`UNCONFIRMED`, :data:`MASKED`.
     why : str
         The detail of a refusal (parameters out of range, missing rows, holdout figures), or "".
     """
@@ -66,6 +66,8 @@ def explain(d: Decision) -> str:
         return f"fits better but is not physical or not resolved: {d.why}"
     if d.outcome == UNSUPPORTED:
         return f"fits better but the recording does not show its law: {d.why}"
+    if d.outcome == MASKED:
+        return f"fits, but not asserted: {d.why}"
     if d.outcome == UNCONFIRMED:
         return f"passed the cross-validation but not the holdout: {d.why}; not asserted"
     return test
