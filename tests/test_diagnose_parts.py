@@ -217,6 +217,7 @@ def test_calibrated_margin_exceeds_every_effect_free_gain():
 
 
 
+@pytest.mark.slow  # ~3 s: make test may not grow this session
 def test_reference_is_fitted_on_the_rows_a_joint_test_fits_on():
     # breaths resting below the valve's closing: most rows are shut. A PI refitted jointly with an
     # effect's column (creep's) fits on the same rows as the reference PI, so without that column it
