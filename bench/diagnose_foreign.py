@@ -135,10 +135,18 @@ def _creep(q: np.ndarray, duty: np.ndarray, amount: float) -> np.ndarray:
 def true_flow(effects: dict, exc: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Duty (%), flow at the sensor without noise (L/min) and the true supply (bar gauge) or None."""
     duty = excitation(exc, seed)
+    plain = None if effects.get("coil_heating") or effects.get("asymmetric_hysteresis") else _plain_valve(exc, seed)
+    return (duty, *flow_of(effects, duty, seed, plain))
+
+
+def flow_of(effects: dict, duty: np.ndarray, seed: int, plain: np.ndarray | None = None) -> tuple:
+    """Flow at the sensor without noise (L/min) and the true supply (bar gauge) or None, of the valve
+    with ``effects`` on any ``duty`` at :data:`RATE_HZ` (``plain``: the effect-free valve's flow on it,
+    if known)."""
     t = np.arange(len(duty)) / RATE_HZ
     d_eff = _heat(duty, effects["coil_heating"]) if effects.get("coil_heating") else duty
     asym = effects.get("asymmetric_hysteresis", 0.0)
-    q = valve(d_eff, asym) if d_eff is not duty or asym else _plain_valve(exc, seed)
+    q = valve(d_eff, asym) if plain is None else plain
     if effects.get("creep"):
         q = _creep(q, duty, effects["creep"])
     if effects.get("dead_zone"):
@@ -158,7 +166,7 @@ def true_flow(effects: dict, exc: str, seed: int) -> tuple[np.ndarray, np.ndarra
         q = lfilter([c, 1.0 - a - c], [1.0, -a], q - q[0]) + q[0]  # at rest at the first flow
     if effects.get("transport_delay"):
         q = np.interp(t - effects["transport_delay"], t, q)
-    return duty, q + effects.get("sensor_offset", 0.0), supply
+    return q + effects.get("sensor_offset", 0.0), supply
 
 
 @lru_cache(maxsize=16)

@@ -99,34 +99,6 @@ def foreign_duty(exc: str, seed: int) -> np.ndarray:
     return F.excitation(exc, seed)[:int(DURATION_S * F.RATE_HZ)]
 
 
-def foreign_flow(effects: dict, duty: np.ndarray, seed: int):
-    """The foreign suite's physics (:func:`diagnose_foreign.true_flow`) on any duty."""
-    rate = F.RATE_HZ
-    t = np.arange(len(duty)) / rate
-    d_eff = F._heat(duty, effects["coil_heating"]) if effects.get("coil_heating") else duty
-    q = F.valve(d_eff, effects.get("asymmetric_hysteresis", 0.0))
-    if effects.get("creep"):
-        q = F._creep(q, duty, effects["creep"])
-    if effects.get("dead_zone"):
-        q = np.where(d_eff < effects["dead_zone"], 0.0, q)
-    supply = None
-    if effects.get("supply_pressure"):
-        supply = F._supply(t, effects["supply_pressure"], q, seed)
-        q = q * (supply + 1.01325) / (3.0 + 1.01325)
-    if effects.get("saturation"):
-        q = np.minimum(q, effects["saturation"])
-    if effects.get("valve_dynamics"):
-        from scipy.signal import lfilter
-
-        tau = effects["valve_dynamics"]
-        a = np.exp(-1.0 / (rate * tau))
-        c = 1.0 - rate * tau * (1.0 - a)
-        q = lfilter([c, 1.0 - a - c], [1.0, -a], q - q[0]) + q[0]
-    if effects.get("transport_delay"):
-        q = np.interp(t - effects["transport_delay"], t, q)
-    return q + effects.get("sensor_offset", 0.0), supply
-
-
 def record(p: Probe):
     from models.recording import Recording
     from plant_sim.plant import Plant, load_plant
@@ -138,7 +110,7 @@ def record(p: Probe):
         keep = ("t_s", "duty_pct", "flow_lpm") + (("supply_bar",) if "supply_pressure" in eff else ())
         return Recording(f"<{p.label()}>", {k: np.asarray(cols[k], float) for k in keep})
     duty = foreign_duty(p.excitation, p.seed)
-    q, supply = foreign_flow(eff, duty, p.seed)
+    q, supply = F.flow_of(eff, duty, p.seed)
     rng = np.random.default_rng(p.seed * 31 + 7)
     cols = {"t_s": np.arange(len(duty)) / F.RATE_HZ, "duty_pct": duty,
             "flow_lpm": q + rng.normal(0.0, p.noise_lpm, len(q))}
