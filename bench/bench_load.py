@@ -179,16 +179,17 @@ def attribute_steal(overruns: list[tuple[float, int]], windows: list[tuple[float
     return stolen, 100.0 * covered / max(1e-9, hi - lo)
 
 
-def proc_counters(pid: int) -> tuple[int, int]:
+def proc_counters(pid: int) -> tuple[int, int, float]:
     """(major page faults of process ``pid``, involuntary context switches of its main thread, where the loop
-    runs); (-1, -1) once it is gone."""
+    runs, and that thread's time runnable but waiting for a CPU, ms: schedstat's run delay); -1s once gone."""
     try:
         majflt = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[9])
-        status = open(f"/proc/{pid}/status").read()
+        status = open(f"/proc/{pid}/task/{pid}/status").read()
         nvcs = int(re.search(r"nonvoluntary_ctxt_switches:\s+(\d+)", status).group(1))
-        return majflt, nvcs
+        wait_ms = int(open(f"/proc/{pid}/task/{pid}/schedstat").read().split()[1]) * 1e-6
+        return majflt, nvcs, wait_ms
     except (OSError, AttributeError, IndexError, ValueError):
-        return -1, -1
+        return -1, -1, -1.0
 
 
 def host_steal_ms() -> float:
@@ -323,7 +324,9 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
     row.update(stolen_overruns=stolen, steal_cover_pct=covered_pct,
                adjusted_overrun_pct=100.0 * max(0, s["overruns"] - stolen) / total,
                majflt=[b[0] - a[0] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
-               preempted=[b[1] - a[1] if counters0 else None for a, b in zip(counters0 or counters1, counters1)])
+               preempted=[b[1] - a[1] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
+               run_wait_ms=[round(b[2] - a[2], 1) if counters0 else None
+                            for a, b in zip(counters0 or counters1, counters1)])
     if flood:  # the flooded process: its share of the configured rate and its longest step
         if at_node:
             row["flooded_rate_pct"] = 100.0 * n["steps"] / max(1, n["steps"] + n["overruns"])
@@ -394,14 +397,17 @@ def main() -> None:
           f"The raw figure is the one the issue counts")
     print("major faults: page faults that read from disk, controller/node; preempted: involuntary context switches "
           "of the loop's thread, controller/node (a SCHED_FIFO thread is preempted only by higher real-time "
-          "priorities, the kernel's own work, or a wait it did not choose)")
+          "priorities, the kernel's own work, or a wait it did not choose); run wait: the loop thread's time runnable "
+          "but waiting for a CPU, controller/node (behind a real-time thread of equal or higher priority, ours or "
+          "another process's, or the kernel)")
     hdr = ("case", "rep", "rate Hz", "steps", "overruns", "overrun %", "stale", "stalled", "node steps", "fresh cmd %",
            "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "node gap max ms", "host steal ms",
-           "stolen", "steal cover %", "adjusted overrun %", "major faults", "preempted")
+           "stolen", "steal cover %", "adjusted overrun %", "major faults", "preempted",
+           "run wait ms")
     keys = ("case", "rep", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "stalled", "node_steps",
             "fresh_cmd_pct", "cmd_timeouts", "rt_p50_us", "rt_p99_us", "compute_max_us", "lateness_max_us",
             "node_gap_max_ms", "steal_ms", "stolen_overruns", "steal_cover_pct", "adjusted_overrun_pct", "majflt",
-            "preempted")
+            "preempted", "run_wait_ms")
     print(" | ".join(hdr))
     for r in rows:
         cells = []
