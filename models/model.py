@@ -125,8 +125,6 @@ class FittedModel:
             raise InputError(f"{source}: kind: {kind!r} is not a model kind (one of {', '.join(forward_kinds())})")
         f = convert(d, KINDS[kind].file, source)
         # the checked params, with the schema's defaults for the fields a file may leave out
-        from .inverse_pi import NotInvertible
-
         try:
             field = "params"
             core = core_class(kind).from_params(msgspec.to_builtins(f.params))
@@ -134,7 +132,8 @@ class FittedModel:
             if getattr(f, "inverse", None) is not None:
                 field = "inverse.params"
                 inverse = core_class(f.inverse.kind).from_params(msgspec.to_builtins(f.inverse.params))
-        except NotInvertible as exc:  # a kind whose construction inverts its parameters (pi-mod's inverse)
+        except ValueError as exc:  # parameters each in range that do not make a model together (pi-mod's
+            # inverse inverts its forward's: inverse_pi.NotInvertible, a dead zone's non-positive segment slope)
             raise InputError(f"{source}: {field}: {exc}") from None
         return cls(
             kind=kind,

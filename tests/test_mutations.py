@@ -29,6 +29,7 @@ def _materialized(case, tmp_path) -> list[str]:
     "toml/sweep.toml/latin1/sweep",
     "toml/sweep.toml/candidates.valve.tau_s[0]=int_overflow/sweep",  # 10**23 in numpy's isfinite
     "json/valves/pvp/valve_pi_mod.json/inverse.params.forward.w.0=negative/diagnose",  # NotInvertible
+    "json/valves/pvp/valve_pi_mod.json/inverse.params.forward.g.12=negative/diagnose",  # ValueError
     "toml/run.toml/profile.peak_lpm=bool/run",      # accepted as 1.0
     "toml/run.toml/valve_node.command_timeout_ms=huge/valve-node",  # 1e308 ms: the node never closes
 ])
