@@ -61,6 +61,17 @@ def identify(cfg, ep, duration_s, out):
                     "--duration", str(duration_s), "-o", str(out))
 
 
+def last_phase(csv) -> str | None:
+    """The protocol phase of the last row written to an identification recording (its tail only)."""
+    try:
+        with open(csv, "rb") as fh:
+            fh.seek(max(0, os.path.getsize(csv) - 200))
+            last = fh.read().decode(errors="replace").rstrip("\n").splitlines()[-1].split(",")
+    except (OSError, IndexError):
+        return None
+    return last[-2] if len(last) > 2 else None
+
+
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     """Two identifications of one valve-node, overlapped as a valve allows it.
@@ -72,21 +83,20 @@ def sessions(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("identify_zenoh")
     cfg = twin_config(tmp)
     node, ep = node_and_endpoint(cfg, tmp)
-    watcher = client_session(ep)
-    cmds, alive, sub = [], [], None
-    tok = watcher.liveliness().declare_subscriber("vent/valve/insp/alive/controller",
-                                                  lambda s: alive.append(s.kind == zenoh.SampleKind.PUT), history=True)
-    res, procs = {}, []
+    res, procs, watcher, cmds = {}, [], None, []
     try:
         full = identify(cfg, ep, 10, tmp / "full")
         procs.append(full)
-        wait_for(lambda: alive and alive[-1], "the first identification's token", [full])
-        wait_for(lambda: not alive[-1], "the first identification letting the valve go")  # at its exit at the latest
-        # the commands from here on (not during the full protocol: a 1 kHz callback here would load the machine)
-        sub = watcher.declare_subscriber("vent/valve/insp/cmd/duty",
-                                         lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
-        # its recording is all it is checked on: no stall of a busy machine may stop it before the Ctrl-C
-        ctrl_c = identify(twin_config(tmp, "patient", stale_ms=5000.0), ep, 30, tmp / "interrupted")
+        # nothing else on the valve's Zenoh while the full protocol runs: only its recording is read (its tail)
+        wait_for(lambda: last_phase(tmp / "full" / "identification.csv") == "safe", "the full protocol's end", [full])
+        watcher = client_session(ep)
+        watcher.declare_subscriber("vent/valve/insp/cmd/duty",
+                                   lambda s: cmds.append(json.loads(s.payload.to_bytes())["value"]))
+        wait_for(lambda: not list(watcher.liveliness().get("vent/valve/insp/alive/controller", timeout=0.2)),
+                 "the first identification letting the valve go")  # at its exit at the latest
+        # its recording is all it is checked on: no stall of a busy machine may stop it before the Ctrl-C; 60 s:
+        # its range ramp (4 % of the protocol each way) finds the valve's flow through a starved node's pauses
+        ctrl_c = identify(twin_config(tmp, "patient", stale_ms=5000.0), ep, 60, tmp / "interrupted")
         procs.append(ctrl_c)
         csv = tmp / "interrupted" / "identification.csv"
         wait_for(lambda: any(r[-2] == "sweep" for r in rows(csv)[-50:]), "the sweep", [ctrl_c])
@@ -99,10 +109,8 @@ def sessions(tmp_path_factory):
     finally:
         for p in procs:
             stop(p)
-        if sub is not None:
-            sub.undeclare()
-        tok.undeclare()
-        watcher.close()
+        if watcher is not None:
+            watcher.close()
         stop(node)
     res["node"] = json.loads((tmp / "n.json").read_text())
     res["cfg"] = cfg
@@ -145,7 +153,7 @@ def test_ctrl_c_puts_the_valve_in_the_safe_duty_and_keeps_the_recording(sessions
     rc, se, out, cmds = sessions["interrupted"]
     assert rc == 130, se
     summ = json.loads((out / "identify.json").read_text())
-    assert summ["aborted"] and summ["reason"] == "interrupted" and summ["duration_s"] < 30
+    assert summ["aborted"] and summ["reason"] == "interrupted" and summ["duration_s"] < 60
     rec = read_recording(out / "identification.csv")  # every row complete and valid
     assert rec.text_columns["phase"][-1] == "safe" and rec.duty_pct[-1] == 0.0
     assert cmds and cmds[-1] == 0.0  # the valve received the safe duty last
