@@ -26,8 +26,10 @@ $(PRECOMPILED): $(STAMP) $(KERNELS)
 	$(PY) -m controller.precompile
 	touch $(PRECOMPILED)
 
+# Two workers: the real-time tests (tests/conftest.py's REALTIME_MODULES) one after the other on one of
+# them, the CPU-bound tests on both. `-n0` runs everything in one process.
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadgroup
 
 # The main job: a 20 s closed-loop run of a breath profile with ff+kf on the embedded simulated
 # valve (valve_dynamics, transport_delay and sensor noise on; config/run.toml). The simulated valve
