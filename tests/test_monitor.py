@@ -5,6 +5,7 @@ import json
 import os
 import pty
 import select
+import signal
 import subprocess
 import sys
 import threading
@@ -153,9 +154,16 @@ def test_secured_monitor_reads_the_status_of_a_secured_loop(tmp_path):
     mons = []
     try:
         wait_for(lambda: any(r[6] == "running" for r in rows(rec)), "the secured loop running", (ctrl, node))
-        mons = [valvectl("monitor", "--connect", ep, "--certs", str(site), "--duration", "5", "--record", str(good)),
-                valvectl("monitor", "--connect", ep, "--duration", "5", "--record", str(rogue))]
+        mons = [valvectl("monitor", "--connect", ep, "--certs", str(site), "--duration", "0", "--record", str(good)),
+                valvectl("monitor", "--connect", ep, "--duration", "0", "--record", str(rogue))]
+        # the rogue's recording opens once its session is up and subscribed: from then on the monitor with
+        # certificates receives statuses while the rogue listens beside it
+        wait_for(rogue.exists, "the rogue monitor listening", (*mons, ctrl, node))
+        n0 = len(rows(good))
+        wait_for(lambda: len(rows(good)) >= n0 + 5 and "running" in {r[1] for r in rows(good)[n0:]},
+                 "statuses at the monitor with certificates", (*mons, ctrl, node))
         for m in mons:
+            m.send_signal(signal.SIGTERM)
             _, err = m.communicate(timeout=90)
             assert m.returncode == 0, err
     finally:

@@ -129,8 +129,11 @@ def count(sub) -> int:
     return n
 
 
-def put_all(session, key: str) -> None:
+def put_all(session, key: str, matched: bool = False) -> None:
+    """``N`` puts on ``key``; ``matched``: from when a subscription has reached ``session`` (no fixed wait)."""
     pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    if matched:
+        wait_for(lambda: pub.matching_status.matching, f"a subscription to {key} at the publisher")
     for k in range(N):
         pub.put(json.dumps({"t": 0.0, "seq": k, "value": 1.0}).encode())
 
@@ -167,9 +170,7 @@ def test_rogues_deliver_nothing_and_the_legitimate_party_everything(sites, rogue
             time.sleep(0.5)
         assert count(sub) == 0
         with zenoh.open(config(connect=[ep], certs=site, role=LEGIT[key])) as good:
-            wait_for(lambda: list(good.info.peers_zid()), "the legitimate link")
-            time.sleep(0.3)  # the subscription's declaration reaches the new peer
-            put_all(good, f"{P}/{key}")
+            put_all(good, f"{P}/{key}", matched=True)  # once the subscription's declaration reached it
             got = [0]  # counted as they come: the test ends when all N are in, not after a fixed wait
 
             def all_in() -> bool:
