@@ -16,14 +16,15 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 
-# Ahead of time: the kernels of run and sweep compiled into numba's cache after install and after their
+# Ahead of time, in two processes at once: the kernels of run and sweep, and those of every model kind's
+# fit and inverse and of the diagnosis, compiled into numba's cache after install and after their
 # sources change, so the first run, sweep or test after either compiles nothing.
-KERNELS := $(wildcard controller/laws/*.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py)
+KERNELS := $(wildcard controller/laws/*.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py models/diagnose/*.py)
 # Numba checks a cached kernel against its own file only, not the files of the kernels it inlines:
 # the caches are cleared first, so an edit anywhere in KERNELS is never run as stale machine code.
 $(PRECOMPILED): $(STAMP) $(KERNELS)
 	find controller models plant_sim -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete
-	$(PY) -m controller.precompile
+	$(PY) -m controller.precompile --models & models=$$!; $(PY) -m controller.precompile && wait $$models
 	touch $(PRECOMPILED)
 
 # Two workers: the real-time tests (tests/conftest.py's REALTIME_MODULES) one after the other on one of
