@@ -127,6 +127,11 @@ def test_identify_recovers_lag_delay_and_writes_a_run_configuration(sessions):
     assert not summ["aborted"] and summ["model"] in INVERTIBLE  # a kind the feedforward can invert
     # 10 s of valve time; a stall of the machine across the end carries the last step past it by the periods it missed
     assert 10.0 - 0.1 <= summ["duration_s"] <= 10.0 + 0.1 + summ["overruns"] * 1e-3
+    # what the machine cost the recording, counted on the valve's timeline as the session counted it
+    tl = summ["timeline"]
+    assert tl["periods"] == pytest.approx(summ["steps"] + summ["overruns"], rel=0.01, abs=2)
+    assert tl["missed"] == pytest.approx(summ["overruns"], rel=0.01, abs=2) and tl["verdict"] in ("ok", "degraded")
+    assert (tl["verdict"] == "degraded") == ("periods missed" in se)
     dyn = summ["dynamics"]
     if dyn["clean"]:  # a step read without a stall of this machine
         assert summ["tau_s"] == pytest.approx(TAU, rel=0.2)

@@ -34,7 +34,6 @@ def _bar(total: float, desc: str, unit: str):
 
 
 def run(args) -> int:
-    import dataclasses
     import signal
 
     from models.model import write_json_atomic
@@ -93,48 +92,44 @@ def run(args) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
+    from controller.identify.analysis import Damaged, damage_of, identify
+
     if res.aborted:
-        write_json_atomic(os.path.join(out, "identify.json"), summary_json(res))
+        write_json_atomic(os.path.join(out, "identify.json"), summary_json(res, damage=damage_of(res, rate)))
         sys.stderr.write(f"valvectl identify: aborted ({res.message or res.reason}) after {res.duration_s:.1f} s: valve at the "
                          f"safe duty {safety.safe_duty_pct:g} %; recording {writer.path} complete to that point\n")
         return 130 if res.reason == "interrupted" else 1
 
-    from controller.identify.dynamics import dynamics_from_steps
-    from controller.identify.estimate import estimate
     from controller.identify.report import write_report
-    from controller.identify.tune import plant_model, tune
+    from controller.identify.tune import tune_identified
     from models.fitting import KINDS
 
-    c = res.columns
+    bar = _bar(len(KINDS), "fit", "kinds")
     try:
-        dyn = dynamics_from_steps(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase == "steps",
-                                  fresh=c["meas_age_ms"] == 0.0)
-    except ValueError as exc:
-        sys.stderr.write(f"valvectl identify: cannot read the lag and delay: {exc}\n")
+        ident = identify(res, rate, progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)))
+    except Damaged as exc:
+        write_json_atomic(os.path.join(out, "identify.json"), summary_json(res, damage=damage_of(res, rate)))
+        sys.stderr.write(f"valvectl identify: refused: {exc}\n")
         return 1
+    except ValueError as exc:
+        sys.stderr.write(f"valvectl identify: {exc}\n")
+        return 1
+    finally:
+        bar.close()
+    dyn, est = ident.dynamics, ident.estimate
+    if ident.warning:
+        sys.stderr.write(f"valvectl identify: warning: {ident.warning}\n")
     if not dyn.clean:
         from controller.identify.report import NOT_CLEAN
 
         sys.stderr.write(f"valvectl identify: warning: {NOT_CLEAN}\n")
-    # the loop's convention ([valve] delay_s, plant transport_delay): one period less than command to reading
-    dyn = dataclasses.replace(dyn, delay_s=max(dyn.delay_s - 1.0 / rate, 0.0))
-    bar = _bar(len(KINDS), "fit", "kinds")
-    est = estimate(c["t_s"], c["duty_pct"], c["flow_lpm"], res.phase, res.working_range.lo_pct,
-                   res.working_range.hi_pct, dyn, rate,
-                   progress=lambda k: (bar.set_description(f"fit {k}"), bar.update(1)), fresh=c["meas_age_ms"] == 0.0)
-    bar.close()
-    pi = est.results["pi"].model if "pi" in est.results else None
-    plant = plant_model(est.model, lambda: pi)
-    if plant is None:
-        sys.stderr.write("valvectl identify: the simulated plant cannot run any fitted kind\n")
+    try:
+        tuning = tune_identified(cfg, out, est, dyn, idc["seed"], idc["tune_candidates"], res.working_range.span_pct)
+    except ValueError as exc:
+        sys.stderr.write(f"valvectl identify: {exc}\n")
         return 1
-    # the model-error variant of the gain sweep: the valve as the next-best kind the plant can run describes it
-    others = sorted((r for r in est.results.values() if r.model.kind != plant.kind), key=lambda r: r.validation.rmse)
-    alt = next((r.model for r in others if plant_model(r.model, lambda: None) is not None), None)
-    tuning = tune(cfg, out, est.model, plant, dyn.tau_s, dyn.delay_s, dyn.noise_lpm, idc["seed"],
-                  idc["tune_candidates"], alt=alt, span_pct=res.working_range.span_pct)
-    report = write_report(out, res, est, dyn, tuning, rate)
-    summ = summary_json(res, est, dyn, tuning)
+    report = write_report(out, res, ident, tuning)
+    summ = summary_json(res, est, dyn, tuning, ident.damage)
     write_json_atomic(os.path.join(out, "identify.json"), summ)
     v = summ["validation"]
     print(f"identified in {res.duration_s:.0f} s: range {res.working_range.lo_pct:.1f}..{res.working_range.hi_pct:.1f} %, "

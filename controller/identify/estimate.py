@@ -113,7 +113,8 @@ def predict_flow(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, tau_s
 
 def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase: np.ndarray, lo_pct: float,
              hi_pct: float, dyn: Dynamics, rate_hz: float, kinds: Sequence[str] = KINDS,
-             progress: Callable[[str], None] | None = None, fresh: np.ndarray | None = None) -> Estimate:
+             progress: Callable[[str], None] | None = None, fresh: np.ndarray | None = None,
+             observed: np.ndarray | None = None) -> Estimate:
     """Fit ``kinds`` on the sweep and reversals, validate on the steps, choose the feedforward's kind.
 
     Parameters
@@ -129,8 +130,15 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
         The recording's step rate, Hz.
     fresh : ndarray of bool, optional
         Rows whose flow was received in that step (the fit reads the flow ahead from them only).
+    observed : ndarray of bool, optional
+        Rows the figures may be scored on (:attr:`.timeline.Timeline.observed`: not inside a stall's
+        reading gap, where the flow is interpolated); all when not given.
+
+    The rows must be evenly spaced at ``rate_hz`` (:func:`.timeline.timeline`): the lag, the delay and
+    the fits' lowpass count rows as time.
     """
-    val_mask = phase == VALIDATION_PHASE
+    seen = np.ones(len(t_s), dtype=bool) if observed is None else np.asarray(observed, dtype=bool)
+    val_mask = (phase == VALIDATION_PHASE) & seen
     f = np.ones(len(t_s), dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
     end = int(np.flatnonzero(val_mask)[-1]) + 1 if val_mask.any() else len(t_s)
     sweep_rows = np.flatnonzero(phase == "sweep")
@@ -158,7 +166,8 @@ def estimate(t_s: np.ndarray, duty_pct: np.ndarray, flow_lpm: np.ndarray, phase:
                 continue
             pred = np.full(len(t_s), np.nan)
             pred[first:end] = predict_flow(model, x[first:end], rate_hz, dyn.tau_s, dyn.delay_s + 1.0 / rate_hz)
-            r = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[fit_mask], pred[fit_mask]),
+            scored = fit_mask & seen
+            r = KindResult(kind, model.meta["fit_s"], metrics(flow_lpm[scored], pred[scored]),
                            metrics(flow_lpm[val_mask], pred[val_mask]), feedforward_ready(model), model, name,
                            fit_idx)
             if kind not in results or r.validation.rmse < results[kind].validation.rmse:

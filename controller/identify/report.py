@@ -22,13 +22,15 @@ NOT_CLEAN = ("no step was read without a stall of this machine: the lag and dela
              "steps and likely too long; identify again on a quieter machine (or with the loop at real-time priority)")
 from .estimate import Estimate, loops_plot, table
 from .session import SessionResult
+from .timeline import DAMAGED_UNOBSERVED, STALL_PERIODS, Damage
 
 PHASE_COLORS = {"range": "tab:gray", "sweep": "tab:blue", "reversals": "tab:purple", "steps": "tab:green"}
 
 
 def summary_json(res: SessionResult, est: Estimate | None = None, dyn: Dynamics | None = None,
-                 tuning=None) -> dict:
-    """identify.json (DESIGN.md): ``model, validation, tau_s, delay_s, duration_s, aborted``, then details."""
+                 tuning=None, damage: Damage | None = None) -> dict:
+    """identify.json (DESIGN.md): ``model, validation, tau_s, delay_s, duration_s, aborted``, then details
+    (``timeline``: what a busy machine cost the recording, :meth:`.timeline.Damage.to_json`)."""
     out = {
         "model": est.chosen if est else None,
         "validation": est.results[est.chosen].validation.to_dict() if est else None,
@@ -49,6 +51,8 @@ def summary_json(res: SessionResult, est: Estimate | None = None, dyn: Dynamics 
     if tuning:
         out["controller"] = tuning.controller
         out["gains"] = {w: b["params"] for w, b in tuning.best.items()}
+    if damage:
+        out["timeline"] = damage.to_json()
     out.update(steps=res.steps, overruns=res.overruns, faults=res.faults)
     return out
 
@@ -81,14 +85,15 @@ def protocol_plot(res: SessionResult, ax=None):
     return fig
 
 
-def write_report(out_dir: str, res: SessionResult, est: Estimate, dyn: Dynamics, tuning, rate_hz: float) -> str:
-    """Write ``report.md`` and its PNGs to ``out_dir``; returns the report's path."""
+def write_report(out_dir: str, res: SessionResult, ident, tuning) -> str:
+    """Write ``report.md`` and its PNGs to ``out_dir`` (``ident``: :class:`.analysis.Identification`);
+    returns the report's path."""
     import matplotlib.pyplot as plt
 
-    c = res.columns
+    tl, est, dyn, d = ident.timeline, ident.estimate, ident.dynamics, ident.damage
     for name, fig in (("protocol.png", protocol_plot(res)),
-                      ("loops.png", loops_plot(est, c["duty_pct"], c["flow_lpm"], rate_hz, dyn)),
-                      ("steps.png", steps_plot(dyn, c["t_s"], c["flow_lpm"]))):
+                      ("loops.png", loops_plot(est, tl.duty_pct, tl.flow_lpm, tl.rate_hz, dyn)),
+                      ("steps.png", steps_plot(dyn, res.columns["t_s"], res.columns["flow_lpm"]))):
         save_figure_atomic(fig, os.path.join(out_dir, name), dpi=110)
         plt.close(fig)
     r = res.working_range
@@ -100,6 +105,16 @@ def write_report(out_dir: str, res: SessionResult, est: Estimate, dyn: Dynamics,
         "`identification.csv`.",
         "",
         "![protocol](protocol.png)",
+        "",
+        "## Timeline",
+        f"Of {d.periods} periods of {1e3 / tl.rate_hz:g} ms, {d.missed} ({d.missed_share:.1%}) were missed "
+        f"in {d.stalls} stalls of this machine (longest {d.longest_stall_ms:.0f} ms): the valve held the duty "
+        "it had, and the fits and the models' figures below are on that timeline (the duty in "
+        f"force at each period, the readings at their times; the steps are read at their rows' own times). "
+        f"{d.unobserved_share:.1%} of the periods lie in reading gaps longer than {STALL_PERIODS:g} periods "
+        f"(never scored): {d.unobserved_fit_share:.1%} of the fitted phases and {d.unobserved_steps_share:.1%} "
+        f"of the steps (refused above {DAMAGED_UNOBSERVED:.0%}); longest gap {d.longest_gap_ms:.0f} ms.",
+        *([] if not ident.warning else ["", f"**Warning:** {ident.warning}"]),
         "",
         "## Working range",
         f"Cracking at {r.lo_pct:.1f} % duty, fully open (or the flow ceiling) at {r.hi_pct:.1f} %, "

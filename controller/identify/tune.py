@@ -225,3 +225,24 @@ def tune(base, out_dir: str, model: FittedModel, plant: FittedModel, tau_s: floa
     cfg = apply(cfg, winner, rows[winner])
     write_run_config(cfg, run.path)
     return Tuning(run.path, winner, best, res.seconds)
+
+
+def tune_identified(base, out_dir: str, est, dyn, seed: int = 0, candidates: int = 200, span_pct: float = 0.0,
+                    workers: int | None = None) -> Tuning:
+    """:func:`tune` for an identification (``est``: :class:`.estimate.Estimate`, ``dyn``: its
+    :class:`.dynamics.Dynamics`): the simulated plant runs the chosen model (a PI fitted on the same
+    rows when it cannot), and the model-error variant is the next-best kind it can run.
+
+    Raises
+    ------
+    ValueError
+        The simulated plant can run no fitted kind, or the sweep gave no finite IAE.
+    """
+    pi = est.results["pi"].model if "pi" in est.results else None
+    plant = plant_model(est.model, lambda: pi)
+    if plant is None:
+        raise ValueError("the simulated plant cannot run any fitted kind")
+    others = sorted((r for r in est.results.values() if r.model.kind != plant.kind), key=lambda r: r.validation.rmse)
+    alt = next((r.model for r in others if plant_model(r.model, lambda: None) is not None), None)
+    return tune(base, out_dir, est.model, plant, dyn.tau_s, dyn.delay_s, dyn.noise_lpm, seed, candidates, workers,
+                alt, span_pct)
