@@ -296,7 +296,7 @@ def one(name: str, duration: float, root: str, repeat: int = 0) -> dict:
            "val_rmse": summ["validation"]["rmse"],
            "round_trip_p50_us": nj["round_trip_us"]["p50"], "controller": summ["controller"], "aborts": aborts,
            "id_load1": id_load1, "id_periods": summ.get("steps"),
-           "id_overruns": summ["overruns"], "steps_read": summ["dynamics"]["steps"],
+           "id_overruns": summ["overruns"], "id_timeline": summ.get("timeline"), "steps_read": summ["dynamics"]["steps"],
            "steps_disturbed": summ["dynamics"]["steps_disturbed"]}
     run_toml = os.path.join(out, "run.toml")
     runs: dict = {}
