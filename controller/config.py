@@ -57,6 +57,7 @@ class Loop(_Section):
     status_hz: Annotated[float, msgspec.Meta(ge=0.01)] = 10.0
     spin_us: NonNegative = 300.0
     rt_priority: Annotated[int, msgspec.Meta(ge=0, le=99)] = 0
+    cpu: Annotated[int, msgspec.Meta(ge=-1, le=4095)] = -1
     trigger: Literal["period", "measurement"] = "period"
     rehearse: bool = True
 
@@ -214,7 +215,7 @@ class RunConfig:
         return LoopSettings(rate_hz=lp["rate_hz"], stale_ms=lp["stale_ms"], ref_stale_ms=lp["ref_stale_ms"],
                             safe_duty_pct=lp["safe_duty_pct"], flow_max_lpm=lp["flow_max_lpm"],
                             status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"],
-                            trigger=lp["trigger"], rehearse=lp["rehearse"],
+                            cpu=lp["cpu"], trigger=lp["trigger"], rehearse=lp["rehearse"],
                             alarms=AlarmSettings(**self["alarms"]), fallback=SupervisorSettings(**self["fallback"]))
 
 

@@ -110,6 +110,10 @@ class LoopSettings:
         :data:`WATCHDOG_PERIODS` periods after the previous step when none came
         (the sensor samples on its own clock; the transport must call the
         loop at each arrival: ``on_measurement(hook)``).
+    cpu : int
+        On the real clock: the CPU the loop's thread runs on while the loop runs, so that each step finds
+        the caches of the CPU the previous one warmed (the scheduler otherwise wakes the thread wherever a
+        CPU is free); -1: wherever the scheduler puts it.
     rehearse : bool
         On the real clock: rehearse the step's compiled calls on scratch
         copies just before the step is due, so that the step itself runs on
@@ -133,6 +137,7 @@ class LoopSettings:
     status_hz: float = 10.0
     spin_s: float = 300e-6
     rt_priority: int = 0
+    cpu: int = -1
     trigger: str = "period"
     rehearse: bool = True
     alarms: AlarmSettings = AlarmSettings()
@@ -177,6 +182,25 @@ def realtime(priority: int):
         yield True
     finally:
         os.sched_setscheduler(0, old_policy, old_param)
+
+
+@contextlib.contextmanager
+def pinned(cpu: int):
+    """Run the calling thread on CPU ``cpu`` alone (-1: unchanged) and give it back its former CPUs after."""
+    if cpu < 0 or not hasattr(os, "sched_setaffinity"):
+        yield False
+        return
+    old = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {cpu})
+    except OSError:  # no such CPU, or not one of this process's
+        sys.stderr.write(f"loop: cannot run on CPU {cpu}; running on CPUs {sorted(old)}\n")
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.sched_setaffinity(0, old)
 
 
 def _lift(priority: int):
@@ -552,7 +576,8 @@ class Loop:
 
         rt = contextlib.ExitStack()
         rt.enter_context(gc_paused())
-        rt.enter_context(realtime(cfg.rt_priority if isinstance(clock, RealClock) else 0))
+        rt.enter_context(realtime(cfg.rt_priority if real_time else 0))
+        rt.enter_context(pinned(cfg.cpu if real_time else -1))
         t0 = clock.now()
         try:
             if on_measurement:

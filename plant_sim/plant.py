@@ -503,10 +503,15 @@ class RunningPlant:
         self._batch = batch
         self.k = state.k
         self._ms, self._x, self._buf = state.model.copy(), state.x.copy(), state.buf.copy()
-        # the kernel's machine code, called without numba's dispatcher (models.direct)
-        self._step_one = direct(K.step_one, batch._P, batch._MP, batch._EV, batch._keys, self._ms, self._x, self._buf,
-                                self.k, 0.0)
         self._scratch = self._ms.copy(), self._x.copy(), self._buf.copy()  # rehearse()'s state
+        # plant 0's rows by address (models.borrow.pointer): the batch's own parameter rows, which
+        # retune() rewrites in place, and the state arrays above, kept here and never reallocated
+        rows = [batch._P[0], batch._MP[0], batch._EV[0], batch._keys[0]]
+        self._heads = [np.array([v for a in rows + list(own) for v in (a.ctypes.data, len(a))], dtype=np.int64)
+                       for own in ((self._ms[0], self._x[0], self._buf[0]), [a[0] for a in self._scratch])]
+        self._head, self._scratch_head = (h.ctypes.data for h in self._heads)
+        # the kernel's machine code, called without numba's dispatcher (models.direct)
+        self._step_at = direct(K.step_at, self._head, self.k, 0.0)
 
     @property
     def state(self) -> PlantState:
@@ -516,16 +521,14 @@ class RunningPlant:
     def rehearse(self, duty_pct: float) -> None:
         """The next step on a scratch copy of the state: its machine code and data pass through the
         caches, and the valve is untouched (a live loop's rehearsal before its deadline)."""
-        b = self._batch
         ms, x, buf = self._scratch
         np.copyto(ms, self._ms)
         np.copyto(x, self._x)
         np.copyto(buf, self._buf)
-        self._step_one(b._P, b._MP, b._EV, b._keys, ms, x, buf, self.k, float(duty_pct))
+        self._step_at(self._scratch_head, self.k, float(duty_pct))
 
     def step(self, duty_pct: float) -> PlantOutput:
         """One step: command ``duty_pct`` (%), read the flow (L/min)."""
-        b = self._batch
-        out = self._step_one(b._P, b._MP, b._EV, b._keys, self._ms, self._x, self._buf, self.k, float(duty_pct))
+        out = self._step_at(self._head, self.k, float(duty_pct))
         self.k += 1
         return PlantOutput(*out)

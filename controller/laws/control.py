@@ -45,11 +45,11 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import carray, njit
 
 from . import feedforward as ffw
 from . import kalman, limits, pid
-from models.borrow import borrow
+from models.borrow import pointer
 from models.direct import direct
 
 MODES = ("pid", "ff", "ff+pid", "ff+kf")
@@ -317,12 +317,23 @@ N_BANK = 21
                                                                                               N_BANK + 11)
 
 
+#: The live header (:class:`Live`), int64: the word's index, the lead's presence, then address and length of
+#: the float buffer, the int buffer and the layout (rows of 3).
+_H_MODE, _H_LEAD, _H_F, _H_NF, _H_I, _H_NI, _H_L, _H_NL, _N_HEAD = range(9)
+
+
 @njit(cache=True)
-def _live_step(mode, has_lead, F, I, L, ref_lpm, meas_lpm, ref_ff_lpm, dt):
-    # One argument per buffer instead of the kernel's 33: the dispatcher's per-argument cost
-    # (~0.15 us each) was most of a live step. Views by the layout of Live; the state is saved
-    # before it advances (Live.rollback), and the filter's prediction taken from the state before.
-    F, I, L = borrow(F), borrow(I), borrow(L)  # views without reference counting (models.borrow)
+def _live_step(head, ref_lpm, meas_lpm, ref_ff_lpm, dt):
+    # One address and four floats: numba's entry point types, unboxes and releases each argument,
+    # and an array's unboxing (a new owner record) cost ~0.5 us cold where an integer's costs
+    # nothing (models.borrow.pointer); the 33 arrays of the kernel's own signature were most of a
+    # live step. Views by the layout of Live; the state is saved before it advances
+    # (Live.rollback), and the filter's prediction taken from the state before.
+    h = carray(pointer(head, np.int64), _N_HEAD)
+    F = carray(pointer(h[_H_F], np.float64), h[_H_NF])
+    I = carray(pointer(h[_H_I], np.int64), h[_H_NI])
+    L = carray(pointer(h[_H_L], np.int64), (h[_H_NL], 3))
+    mode, has_lead = h[_H_MODE], h[_H_LEAD] != 0
     P = _rows(F, L, 0)
     X, Y, H = _rows(F, L, _X), _rows(F, L, _FWD), _rows(F, L, _HIST)
     pos = _col(I, L, _POS)
@@ -385,12 +396,15 @@ class Live:
             views.append(view if a.ndim == 2 else view[:, 0])
             offset[i] += a.size
         self._L = np.array(layout, dtype=np.int64)
-        self._mode, self._lead = k.mode, k.lead
+        self._scratch = self._F.copy(), self._I.copy()  # rehearse()'s buffers
+        # the buffers by address (models.borrow.pointer): this object keeps them, never reallocated
+        self._heads = [np.array([k.mode, k.lead, F.ctypes.data, F.size, I.ctypes.data, I.size, self._L.ctypes.data,
+                                 len(self._L)], dtype=np.int64) for F, I in ((self._F, self._I), self._scratch)]
+        self._head, self._scratch_head = (h.ctypes.data for h in self._heads)
         # the kernel's machine code, called without numba's dispatcher (models.direct)
-        self._step = direct(_live_step, k.mode, k.lead, self._F, self._I, self._L, 0.0, 0.0, 0.0, 0.0)
+        self._step = direct(_live_step, self._head, 0.0, 0.0, 0.0, 0.0)
         self._saved = views[_X_SAVED], views[_FWD_SAVED], views[_HIST_SAVED], views[_POS_SAVED]
         self._io = views[_IO]
-        self._scratch = self._F.copy(), self._I.copy()  # rehearse()'s buffers
         self.state = ControllerState(k.mode, views[_X], views[_FWD], views[_HIST], views[_POS])
 
     def load(self, s: ControllerState) -> ControllerState:
@@ -402,7 +416,7 @@ class Live:
     def step(self, ref_lpm: float, meas_lpm: float, ff_ref_lpm: float, dt_s: float) -> tuple:
         """One period in place: ``(duty, ff, fb, limit, predicted, m)`` (%, and for ``ff+kf`` the filter's
         flow predicted for this step and the delayed model flow ``m[k-1-d]`` before it, L/min; else nan)."""
-        return self._step(self._mode, self._lead, self._F, self._I, self._L, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
+        return self._step(self._head, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
 
     def rehearse(self, dt_s: float) -> None:
         """The last step again, on scratch copies of the buffers: the machine code and the data of a
@@ -412,7 +426,7 @@ class Live:
         np.copyto(F, self._F)
         np.copyto(I, self._I)
         io = self._io
-        self._step(self._mode, self._lead, F, I, self._L, float(io[0]), float(io[1]), float(io[2]), dt_s)
+        self._step(self._scratch_head, float(io[0]), float(io[1]), float(io[2]), dt_s)
 
     def rollback(self) -> ControllerState:
         """Undo the last :meth:`step` (a step whose duty cannot be commanded); returns :attr:`state`."""

@@ -29,6 +29,7 @@ class SimTransport:
 
     def __init__(self, plant, duty0_pct: float = 0.0, injections=()):
         self.plant = plant
+        self._rate_hz = plant.rate_hz
         self._injections = sorted(injections, key=lambda x: x[0])
         self._valve = plant.running(plant.init(duty0_pct))
         out = self._valve.step(duty0_pct)
@@ -56,8 +57,8 @@ class SimTransport:
         while self._injections and self._injections[0][0] <= t_s + 1e-9:
             _, name, value = self._injections.pop(0)
             self.plant.retune(**{name: value})
-        if self._t is not None:
-            for _ in range(int(round((t_s - self._t) * self.plant.rate_hz)) - 1):  # missed periods
+        if self._t is not None and (t_s - self._t) * self._rate_hz >= 1.5:  # missed periods
+            for _ in range(int(round((t_s - self._t) * self._rate_hz)) - 1):
                 self._valve.step(self._duty)
         self._t, self._duty = t_s, duty_pct
         self.last = self._valve.step(duty_pct)
