@@ -23,8 +23,15 @@ raised and how many times it was raised (``S.json`` ``alarms``).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+
+import numpy as np
+from numba import carray, njit
+
+from models.borrow import pointer
+from models.direct import direct
 
 KINDS = ("saturated", "model_mismatch", "supply_low")
 
@@ -63,28 +70,62 @@ class AlarmSettings:
     supply_hold_s: float = 0.02
 
 
-class _Held:
-    """A condition that must hold for ``hold_s`` before it is raised; counts raisings."""
+#: The kernel's buffer (:class:`Alarms`): the settings, then the state, float64.
+(_TAU, _DUTY_HI, _DUTY_LO, _SAT_ERR, _MISMATCH, _SUPPLY_LOW, _HOLD, N_SETTINGS) = (0, 1, 2, 3, 4, 5, 6, 9)  # _HOLD: one per kind
+(_T_PREV, _ERR_LP, _SAT_ERR0, _HELD) = (N_SETTINGS, N_SETTINGS + 1, N_SETTINGS + 2, N_SETTINGS + 3)
+#: Per kind (:data:`KINDS` order), from ``_HELD``: since when its condition holds (nan: it does not), whether it
+#: is raised (0/1), when it was first raised (nan: never) and how many times.
+(_SINCE, _ACTIVE, _FIRST, _COUNT, _N_HELD) = range(5)
+N_BUFFER = _HELD + len(KINDS) * _N_HELD
 
-    def __init__(self, hold_s: float):
-        self.hold_s, self.since, self.active = hold_s, None, False
-        self.first_s, self.count = None, 0
 
-    def update(self, t_s: float, cond: bool) -> None:
-        if not cond:
-            self.since, self.active = None, False
-            return
-        if self.since is None:
-            self.since = t_s
-        if not self.active and t_s - self.since >= self.hold_s - 1e-9:
-            self.active = True
-            self.count += 1
-            if self.first_s is None:
-                self.first_s = t_s
+@njit(cache=True, inline="always")
+def _update_held(A, j, t_s, cond):
+    """Kind ``j``'s condition, which must hold for its hold time before it is raised; counts raisings."""
+    o = _HELD + j * _N_HELD
+    if not cond:
+        A[o + _SINCE], A[o + _ACTIVE] = np.nan, 0.0
+        return
+    if A[o + _SINCE] != A[o + _SINCE]:
+        A[o + _SINCE] = t_s
+    if A[o + _ACTIVE] == 0.0 and t_s - A[o + _SINCE] >= A[_HOLD + j] - 1e-9:
+        A[o + _ACTIVE] = 1.0
+        A[o + _COUNT] += 1.0
+        if A[o + _FIRST] != A[o + _FIRST]:
+            A[o + _FIRST] = t_s
+
+
+@njit(cache=True)
+def _step(address, t_s, running, duty_pct, error_lpm, mismatch_lpm, supply_bar):
+    # the buffer by address (models.borrow.pointer): a call of numbers alone, microseconds on cold caches
+    A = carray(pointer(address, np.float64), N_BUFFER)
+    dt = 0.0 if A[_T_PREV] != A[_T_PREV] else t_s - A[_T_PREV]
+    A[_T_PREV] = t_s
+    if running and math.isfinite(error_lpm):
+        e = A[_ERR_LP] + (error_lpm - A[_ERR_LP]) * (1.0 - math.exp(-dt / A[_TAU]))
+        A[_ERR_LP] = e
+        at_limit = (duty_pct >= A[_DUTY_HI] and e > 0.0) or (duty_pct <= A[_DUTY_LO] and e < 0.0)
+        sat = at_limit and abs(e) >= A[_SAT_ERR]
+        if not sat:
+            A[_SAT_ERR0] = math.inf
+        elif A[_SAT_ERR0] == math.inf:
+            A[_SAT_ERR0] = abs(e)
+        _update_held(A, 0, t_s, sat and abs(e) >= A[_SAT_ERR0] - A[_SAT_ERR] * 0.1)
+        _update_held(A, 1, t_s, abs(mismatch_lpm) > A[_MISMATCH])  # nan compares False
+    else:
+        A[_ERR_LP], A[_SAT_ERR0] = 0.0, math.inf
+        _update_held(A, 0, t_s, False)
+        _update_held(A, 1, t_s, False)
+    _update_held(A, 2, t_s, supply_bar < A[_SUPPLY_LOW])  # nan (no reading) compares False
 
 
 class Alarms:
     """The alarm conditions, evaluated once per loop step.
+
+    ``step(t_s, running, duty_pct, error_lpm, mismatch_lpm, supply_bar)`` is one step:
+    ``error_lpm`` = reference - flow; ``mismatch_lpm`` nan when the law has no model
+    estimate; ``supply_bar`` nan without a supply reading. It is the compiled kernel's
+    entry point itself, bound to this object's buffer (a loop step calls it directly).
 
     Parameters
     ----------
@@ -96,48 +137,28 @@ class Alarms:
     def __init__(self, settings: AlarmSettings, duty_min_pct: float, duty_max_pct: float):
         self.s = settings
         self.duty_min_pct, self.duty_max_pct = duty_min_pct, duty_max_pct
-        self._held = {"saturated": _Held(settings.saturated_hold_s),
-                      "model_mismatch": _Held(settings.mismatch_hold_s),
-                      "supply_low": _Held(settings.supply_hold_s)}
-        # bound once: the loop calls step() every period
-        self._sat, self._mismatch, self._supply = (self._held[k].update for k in KINDS)
-        self._duty_hi = duty_max_pct - settings.saturated_margin_pct
-        self._duty_lo = duty_min_pct + settings.saturated_margin_pct
-        self._err_lp = 0.0
-        self._sat_err0 = math.inf  # |error| when the duty reached its limit
-        self._t_prev: float | None = None
-
-    def step(self, t_s: float, running: bool, duty_pct: float, error_lpm: float, mismatch_lpm: float,
-             supply_bar: float | None) -> None:
-        """One step: ``error_lpm`` = reference - flow; ``mismatch_lpm`` nan when the law has no model estimate."""
-        s = self.s
-        dt = 0.0 if self._t_prev is None else t_s - self._t_prev
-        self._t_prev = t_s
-        if running and math.isfinite(error_lpm):
-            self._err_lp = e = self._err_lp + (error_lpm - self._err_lp) * (1.0 - math.exp(-dt / s.error_tau_s))
-            at_limit = (duty_pct >= self._duty_hi and e > 0.0) or (duty_pct <= self._duty_lo and e < 0.0)
-            sat = at_limit and abs(e) >= s.saturated_error_lpm
-            if not sat:
-                self._sat_err0 = math.inf
-            elif self._sat_err0 == math.inf:
-                self._sat_err0 = abs(e)
-            self._sat(t_s, sat and abs(e) >= self._sat_err0 - s.saturated_error_lpm * 0.1)
-            self._mismatch(t_s, abs(mismatch_lpm) > s.mismatch_lpm)  # nan compares False
-        else:
-            self._err_lp, self._sat_err0 = 0.0, math.inf
-            self._sat(t_s, False)
-            self._mismatch(t_s, False)
-        self._supply(t_s, supply_bar is not None and supply_bar < s.supply_low_bar)
+        a = self._buf = np.full(N_BUFFER, np.nan)
+        a[_TAU], a[_SAT_ERR], a[_MISMATCH] = settings.error_tau_s, settings.saturated_error_lpm, settings.mismatch_lpm
+        a[_DUTY_HI] = duty_max_pct - settings.saturated_margin_pct
+        a[_DUTY_LO] = duty_min_pct + settings.saturated_margin_pct
+        a[_SUPPLY_LOW] = settings.supply_low_bar
+        a[_HOLD:_HOLD + 3] = settings.saturated_hold_s, settings.mismatch_hold_s, settings.supply_hold_s
+        a[_ERR_LP], a[_SAT_ERR0] = 0.0, math.inf
+        held = a[_HELD:].reshape(len(KINDS), _N_HELD)
+        held[:, _ACTIVE] = held[:, _COUNT] = 0.0
+        self._held = held
+        # the kernel's machine code without numba's dispatcher (models.direct), its buffer by address
+        self.step = functools.partial(direct(_step, a.ctypes.data, 0.0, True, 0.0, 0.0, 0.0, 0.0), a.ctypes.data)
 
     def active(self) -> list[str]:
         """The alarms raised now."""
-        return [k for k, v in self._held.items() if v.active]
+        return [k for k, h in zip(KINDS, self._held) if h[_ACTIVE]]
 
     def counts(self) -> dict[str, int]:
         """How many times each alarm was raised (the ones raised at least once)."""
-        return {k: v.count for k, v in self._held.items() if v.count}
+        return {k: int(h[_COUNT]) for k, h in zip(KINDS, self._held) if h[_COUNT]}
 
     def to_list(self) -> list[dict]:
         """``S.json`` ``alarms``: ``[{"kind", "first_s", "count"}]``, in the order first raised."""
-        raised = [(v.first_s, k, v.count) for k, v in self._held.items() if v.count]
+        raised = [(float(h[_FIRST]), k, int(h[_COUNT])) for k, h in zip(KINDS, self._held) if h[_COUNT]]
         return [{"kind": k, "first_s": t, "count": n} for t, k, n in sorted(raised)]

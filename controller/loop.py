@@ -524,8 +524,8 @@ class Loop:
             if state == RUNNING:
                 publish_error(t, err)
                 iae += abs(err) * period / 60.0
-            alarm_step(t, state == RUNNING, duty, err, sup.mismatch_lpm,
-                       supply_bar() if supply_bar is not None else None)
+            supply = supply_bar() if supply_bar is not None else None
+            alarm_step(t, state == RUNNING, duty, err, sup.mismatch_lpm, math.nan if supply is None else supply)
             if steps % status_every == 0:
                 status = {
                     "state": STATES[state],
