@@ -72,6 +72,10 @@ class PureStepSupervisor(Supervisor):
         self.step(self.init(0.0, duty_pct), 0.0, 0.0, dt_s, 0.0, 0.0, Faults())
         self._reset()
 
+    def _reset(self):
+        super()._reset()
+        self._innov_lp, self._model_lag = 0.0, math.nan  # its own health bookkeeping, in Python as it was
+
     def step(self, ctrl, ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults):
         p = self.params
         predicted = float(kalman.predict(p.kf, ctrl.kf)[0]) if p.kf is not None else None

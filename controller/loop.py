@@ -46,8 +46,10 @@ Per step (one period):
 
 Allocation: the loop's per-step records are preallocated arrays; the law of
 the word in force advances in place in one compiled call
-(:class:`controller.laws.control.Live`), and the simulated valve likewise
-(:class:`plant_sim.plant.RunningPlant`), so a step allocates no arrays.
+(:class:`controller.laws.control.Live`), the simulated valve
+(:class:`plant_sim.plant.RunningPlant`) and the alarms
+(:class:`controller.alarms.Alarms`) likewise, each on buffers passed by
+address, so a step allocates no arrays.
 
 The clock is injectable: :class:`RealClock` for the live loop,
 :class:`SimClock` for tests and fast simulations (time jumps to each deadline).

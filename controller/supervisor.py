@@ -37,6 +37,8 @@ from .watchdog import Faults
 
 #: The controller a failing law hands over to: feedback on the measured flow around the feedforward.
 FALLBACK = "ff+pid"
+#: The fault of a live step's verdict (:meth:`controller.laws.control.Live.step`).
+_VERDICT_FAULTS = {control.BAD_COMMAND: "bad_command", control.DIVERGED: "innovation_diverged"}
 
 
 @dataclass(frozen=True)
@@ -76,14 +78,10 @@ class Supervisor:
         if word not in laws:
             raise ValueError(f"controller {word!r} not among {', '.join(laws)}")
         self.laws, self.word, self.settings = dict(laws), word, settings
-        self._live = {w: control.Live(p) for w, p in self.laws.items()}
+        # each law's step judges the filter's health itself (control.Live: one compiled call a step)
+        self._live = {w: control.Live(p, settings) for w, p in self.laws.items()}
         self.pending: str | None = None
         self.mismatch_lpm = math.nan
-        self._innov_lp = 0.0
-        self._beyond_s = 0.0
-        self._model_lag = math.nan  # the model flow through the valve's lag, L/min
-        self._gain_dt = self._gain = math.nan
-        self._kf_a = {w: float(p.kf.a[0]) if p.kf is not None else math.nan for w, p in self.laws.items()}
 
     @classmethod
     def fixed(cls, params: control.ControllerParams) -> "Supervisor":
@@ -99,7 +97,7 @@ class Supervisor:
         health checks, resume, transfer), so that loading compiled kernels (numba's cache: milliseconds per
         kernel and signature) never stalls a live step. The supervisor is left as it was (the laws' states
         are set again by :meth:`init`)."""
-        saved = (self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag)
+        saved = (self.word, self.pending, self.mismatch_lpm)
         zero = np.zeros(1)
         try:
             for word, p in self.laws.items():
@@ -110,7 +108,7 @@ class Supervisor:
                 for other in self.laws.values():
                     control.transfer(other, ctrl, 0.0, zero)
         finally:
-            self.word, self.pending, self.mismatch_lpm, self._innov_lp, self._beyond_s, self._model_lag = saved
+            self.word, self.pending, self.mismatch_lpm = saved
 
     def rehearse(self, dt_s: float) -> None:
         """The law in force's last step again on scratch copies (:meth:`control.Live.rehearse`): nothing changes."""
@@ -132,7 +130,8 @@ class Supervisor:
         return self._live[self.word].load(control.resume(self.params, ctrl, meas_lpm, duty_pct))
 
     def _reset(self) -> None:
-        self._innov_lp, self._beyond_s, self.mismatch_lpm, self._model_lag = 0.0, 0.0, math.nan, math.nan
+        self.mismatch_lpm = math.nan
+        self._live[self.word].reset_health()
 
     def _switch(self, word: str, ctrl, ref_lpm: float, meas_lpm: float):
         old = self.params
@@ -158,32 +157,12 @@ class Supervisor:
         return self._live[self.word].state, cmd
 
     def _law_step(self, ref_lpm, meas_lpm, dt_s, ref_ff_lpm, t_s, faults):
-        """The law's step and its health: the command, or None (with the fault counted and the step
-        undone) when it failed."""
+        """The law's step and its health (judged in the step itself, :meth:`control.Live.step`): the
+        command, or None (with the fault counted and the step undone) when it failed."""
         live = self._live[self.word]
-        duty, ff, fb, limit, predicted, m = live.step(ref_lpm, meas_lpm, ref_ff_lpm, dt_s)
-        if not math.isfinite(duty):  # never command what the law could not compute
-            faults.add("bad_command", t_s)
+        duty, ff, fb, limit, verdict, self.mismatch_lpm = live.step(ref_lpm, meas_lpm, ref_ff_lpm, dt_s)
+        if verdict != control.STEP_OK:
+            faults.add(_VERDICT_FAULTS[verdict], t_s)
             live.rollback()
             return None
-        a = self._kf_a[self.word]
-        if a == a:  # ff+kf: the filter's health and the model's flow error
-            s = self.settings
-            z = meas_lpm
-            g = self._gain if self._gain_dt == dt_s else self._set_gain(dt_s)
-            self._innov_lp += (z - predicted - self._innov_lp) * g
-            lag = m if self._model_lag != self._model_lag else a * self._model_lag + (1.0 - a) * m
-            self._model_lag = lag
-            self.mismatch_lpm = z - lag if self.mismatch_lpm != self.mismatch_lpm else (
-                self.mismatch_lpm + (z - lag - self.mismatch_lpm) * g)
-            self._beyond_s = self._beyond_s + dt_s if abs(self._innov_lp) > s.innovation_limit_lpm else 0.0
-            if self._beyond_s >= s.innovation_hold_s - 1e-12 or not math.isfinite(self._innov_lp):
-                faults.add("innovation_diverged", t_s)
-                live.rollback()
-                return None
         return duty, ff, fb, limit
-
-    def _set_gain(self, dt_s: float) -> float:
-        """The low-pass gain per period of ``dt_s`` (computed once per period length)."""
-        self._gain_dt, self._gain = dt_s, 1.0 - math.exp(-dt_s / self.settings.tau_s)
-        return self._gain

@@ -31,7 +31,7 @@ One compiled kernel steps every word (:func:`advance`): it loops over the
 candidates and calls each law's one implementation, the numba functions of
 :mod:`.pid`, :mod:`.kalman`, :mod:`.limits` and :mod:`.feedforward`. The
 live loop calls it for its batch of one through :class:`Live` (one call of
-a few arguments on one buffer: microseconds a step), the sweep for
+an address and four numbers on one buffer: microseconds a step), the sweep for
 hundreds of candidates at once. Parameters are packed once per
 :class:`ControllerParams` (:attr:`ControllerParams.kernel`); the state is
 one matrix per batch plus the feedforward model's operator memory and the
@@ -40,6 +40,7 @@ copied by the pure :func:`step`.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import NamedTuple
@@ -311,10 +312,32 @@ def _col(F, L, i):
 
 #: Rows of the live buffer's layout (:class:`Live`): 0 the parameters P, 1 to N_BANK - 1 the bank's
 #: float fields (row = field index), then the state, its saved copy, io; in the int buffer pos, its
-#: saved copy and the bank's method; out last.
+#: saved copy and the bank's method; out, the filter's health last.
 N_BANK = 21
-(_X, _FWD, _HIST, _X_SAVED, _FWD_SAVED, _HIST_SAVED, _IO, _POS, _POS_SAVED, _METHOD, _OUT) = range(N_BANK,
-                                                                                              N_BANK + 11)
+(_X, _FWD, _HIST, _X_SAVED, _FWD_SAVED, _HIST_SAVED, _IO, _POS, _POS_SAVED, _METHOD, _OUT, _HEALTH) = range(
+    N_BANK, N_BANK + 12)
+#: The filter's health row (``ff+kf``; :mod:`controller.supervisor`): its settings (the low-pass's time
+#: constant, s, nan: no health figures; the innovation's bound, L/min, and hold time, s), then the
+#: low-passed innovation, how long it has been beyond the bound, the model flow through the valve's lag
+#: and the low-passed model error (nan before the first step), L/min and s.
+(_G_TAU, _G_LIMIT, _G_HOLD, _G_INNOV, _G_BEYOND, _G_LAG, _G_MISMATCH, _N_HEALTH) = range(8)
+#: A live step's verdict (:meth:`Live.step`): the duty stands, it is not finite, the filter diverged.
+STEP_OK, BAD_COMMAND, DIVERGED = range(3)
+
+
+@njit(cache=True, inline="always")
+def _diverged(G, z, predicted, m, a, dt):
+    """The filter's health after one step of measured flow ``z`` (``G``: the health row, advanced):
+    whether its low-passed innovation stayed beyond the bound for the hold time. Also low-passes the
+    model's flow error: the measurement minus the model flow ``m`` through the filter's lag ``a``."""
+    g = 1.0 - math.exp(-dt / G[_G_TAU])
+    G[_G_INNOV] += (z - predicted - G[_G_INNOV]) * g
+    lag = m if G[_G_LAG] != G[_G_LAG] else a * G[_G_LAG] + (1.0 - a) * m
+    G[_G_LAG] = lag
+    mis = G[_G_MISMATCH]
+    G[_G_MISMATCH] = z - lag if mis != mis else mis + (z - lag - mis) * g
+    G[_G_BEYOND] = G[_G_BEYOND] + dt if abs(G[_G_INNOV]) > G[_G_LIMIT] else 0.0
+    return G[_G_BEYOND] >= G[_G_HOLD] - 1e-12 or not math.isfinite(G[_G_INNOV])
 
 
 #: The live header (:class:`Live`), int64: the word's index, the lead's presence, then address and length of
@@ -328,7 +351,8 @@ def _live_step(head, ref_lpm, meas_lpm, ref_ff_lpm, dt):
     # and an array's unboxing (a new owner record) cost ~0.5 us cold where an integer's costs
     # nothing (models.borrow.pointer); the 33 arrays of the kernel's own signature were most of a
     # live step. Views by the layout of Live; the state is saved before it advances
-    # (Live.rollback), and the filter's prediction taken from the state before.
+    # (Live.rollback), the filter's prediction taken from the state before, and its health
+    # (the supervisor's, held here so that a step is one call) judged after.
     h = carray(pointer(head, np.int64), _N_HEAD)
     F = carray(pointer(h[_H_F], np.float64), h[_H_NF])
     I = carray(pointer(h[_H_I], np.int64), h[_H_NI])
@@ -353,20 +377,31 @@ def _live_step(head, ref_lpm, meas_lpm, ref_ff_lpm, dt):
              _rows(F, L, 11), _rows(F, L, 12), _col(F, L, 13), _rows(F, L, 14), _col(F, L, 15), _col(F, L, 16),
              _col(F, L, 17), _col(F, L, 18), _col(F, L, 19), _rows(F, L, 20), X, Y, H, pos, io[0:1], io[1:2],
              io[2:3], dt, out)
-    return out[0, 0], out[0, 1], out[0, 2], out[0, 3], predicted, m
+    G = _col(F, L, _HEALTH)
+    verdict = STEP_OK
+    if not math.isfinite(out[0, 0]):  # never command what the law could not compute
+        verdict = BAD_COMMAND
+    elif mode == FF_KF and G[_G_TAU] == G[_G_TAU] and _diverged(G, meas_lpm, predicted, m, P[0, KF_A], dt):
+        verdict = DIVERGED
+    return out[0, 0], out[0, 1], out[0, 2], out[0, 3], verdict, G[_G_MISMATCH]
 
 
 class Live:
     """One controller (batch of one) advanced in place by one compiled call: the live loop's :func:`step`.
 
     The parameters, the feedforward's model and the state live in one float and one
-    int buffer; :meth:`step` runs :func:`_advance` on views of them, so a step costs one
-    call of a few arguments and allocates nothing.
+    int buffer; :meth:`step` runs :func:`_advance` on views of them, found by address
+    (:func:`models.borrow.pointer`), so a step costs one call of an address and four
+    numbers and allocates nothing. The buffers are this object's, never reallocated.
 
     Parameters
     ----------
     p : ControllerParams
         Batch of one.
+    health : SupervisorSettings or None
+        For ``ff+kf``, the bounds of the filter's health that :meth:`step` judges
+        (:class:`controller.supervisor.SupervisorSettings`: ``tau_s``,
+        ``innovation_limit_lpm``, ``innovation_hold_s``); None: no health figures.
 
     Attributes
     ----------
@@ -374,15 +409,18 @@ class Live:
         Views of the buffers: the state :meth:`step` advances.
     """
 
-    def __init__(self, p: ControllerParams):
+    def __init__(self, p: ControllerParams, health=None):
         if p.batch != 1:
             raise ValueError("Live steps one controller (batch of one)")
         k = p.kernel
         if len(k.bank) != N_BANK:
             raise ValueError(f"the live layout has {N_BANK} bank fields, the feedforward {len(k.bank)}")
         s = init(p, 0.0)
+        g = np.full(_N_HEALTH, np.nan)
+        if health is not None:
+            g[[_G_TAU, _G_LIMIT, _G_HOLD]] = health.tau_s, health.innovation_limit_lpm, health.innovation_hold_s
         rows = [k.P, *k.bank[1:], s.x, s.forward, s.hist, s.x, s.forward, s.hist, np.zeros(3), s.pos, s.pos,
-                k.bank[0], np.zeros((1, 4))]  # in layout order
+                k.bank[0], np.zeros((1, 4)), g]  # in layout order
         is_int = [a.dtype == np.int64 for a in rows]
         self._F = np.zeros(sum(a.size for a, i in zip(rows, is_int) if not i))
         self._I = np.zeros(sum(a.size for a, i in zip(rows, is_int) if i), dtype=np.int64)
@@ -405,6 +443,8 @@ class Live:
         self._step = direct(_live_step, self._head, 0.0, 0.0, 0.0, 0.0)
         self._saved = views[_X_SAVED], views[_FWD_SAVED], views[_HIST_SAVED], views[_POS_SAVED]
         self._io = views[_IO]
+        self._health = views[_HEALTH]
+        self.reset_health()
         self.state = ControllerState(k.mode, views[_X], views[_FWD], views[_HIST], views[_POS])
 
     def load(self, s: ControllerState) -> ControllerState:
@@ -413,9 +453,18 @@ class Live:
         x[:], fwd[:], hist[:], pos[:] = s.x, s.forward, s.hist, s.pos
         return self.state
 
+    def reset_health(self) -> None:
+        """The filter's health from scratch: innovation zero, model error unknown (nan)."""
+        g = self._health
+        g[_G_INNOV] = g[_G_BEYOND] = 0.0
+        g[_G_LAG] = g[_G_MISMATCH] = np.nan
+
     def step(self, ref_lpm: float, meas_lpm: float, ff_ref_lpm: float, dt_s: float) -> tuple:
-        """One period in place: ``(duty, ff, fb, limit, predicted, m)`` (%, and for ``ff+kf`` the filter's
-        flow predicted for this step and the delayed model flow ``m[k-1-d]`` before it, L/min; else nan)."""
+        """One period in place: ``(duty, ff, fb, limit, verdict, mismatch)``: %, then :data:`STEP_OK`,
+        :data:`BAD_COMMAND` (a duty not finite) or :data:`DIVERGED` (``ff+kf``: the filter's low-passed
+        innovation beyond its bound for its hold time), and the low-passed model error (``ff+kf`` with
+        ``health``: the measured flow minus the model flow through the valve's lag, L/min; else nan).
+        A step whose verdict is not :data:`STEP_OK` is to be undone (:meth:`rollback`)."""
         return self._step(self._head, ref_lpm, meas_lpm, ff_ref_lpm, dt_s)
 
     def rehearse(self, dt_s: float) -> None:
