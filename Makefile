@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 # Ahead of time, in two processes at once: the kernels of run and sweep, and those of every model kind's
 # fit and inverse and of the diagnosis, compiled into numba's cache after install and after their
 # sources change, so the first run, sweep or test after either compiles nothing.
-KERNELS := $(wildcard controller/laws/*.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py models/diagnose/*.py)
+KERNELS := $(wildcard controller/laws/*.py controller/alarms.py controller/sweep/simulate.py plant_sim/kernel.py models/*.py models/diagnose/*.py)
 # Numba checks a cached kernel against its own file only, not the files of the kernels it inlines:
 # the caches are cleared first, so an edit anywhere in KERNELS is never run as stale machine code.
 $(PRECOMPILED): $(STAMP) $(KERNELS)

@@ -7,8 +7,8 @@ where it pays: the first ``valvectl run`` and ``valvectl sweep`` after
 install then compile nothing (a sweep's kernel alone takes tens of seconds
 to compile). It runs the shipped run configuration's words for a few steps:
 the live loop's warm-up (every word's step, resume and switch:
-:meth:`controller.supervisor.Supervisor.warm_up`) and valve
-(:class:`plant_sim.plant.RunningPlant`), and the sweep's closed loop
+:meth:`controller.supervisor.Supervisor.warm_up`), valve
+(:class:`plant_sim.plant.RunningPlant`) and alarms, and the sweep's closed loop
 (:func:`controller.sweep.simulate.closed_loop`), which have one signature each.
 ``--models`` compiles the rest: every model kind's fit, prediction and inverse, and the
 diagnosis's kernels, on a short synthetic sweep (a fresh clone's test suite otherwise compiled
@@ -30,6 +30,7 @@ def precompile(config_path: str = "config/run.toml") -> float:
     from models.model import load_model
     from plant_sim.plant import BatchPlant, Plant, load_plant
 
+    from .alarms import Alarms
     from .config import controller_params, load_run_config, supervisor
     from .laws import control
     from .sweep import margins, simulate
@@ -41,6 +42,7 @@ def precompile(config_path: str = "config/run.toml") -> float:
     plant = Plant(valve, cfg.loop.rate_hz)
     plant.running(plant.init(0.0)).step(10.0)
     supervisor(cfg, cfg[""]["controller"], model).warm_up(1.0 / cfg.loop.rate_hz, cfg.loop.safe_duty_pct)
+    Alarms(cfg.loop.alarms, 0.0, 100.0)  # its kernel's entry point, resolved as the loop does
     margins.operating_point(valve, 60.0, cfg.loop.rate_hz)  # the sweep's margins run the valve on a ramp
     for word in control.MODES:
         p = controller_params(cfg, word, model)
