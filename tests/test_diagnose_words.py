@@ -101,6 +101,47 @@ def test_dead_zone_jump_is_seen_through_a_lag():
     assert not dz._jumps(sig, {"cracking_pct": 42.0}, {})
 
 
+def _holds(levels, rows=300):
+    """A duty holding each of ``levels`` (%) for ``rows`` rows, in order."""
+    return np.repeat(np.asarray(levels, float), rows)
+
+
+def test_dead_zone_grid_is_one_point_per_set_of_shut_rows():
+    # held levels 0.2 % apart, closer than the grid's step over the span: every one of them has its
+    # cracking duty just above it, and no two grid points shut the same rows
+    rng = np.random.default_rng(4)
+    levels = rng.permutation(np.r_[np.arange(40.0, 60.0, 0.2), np.arange(60.0, 72.0, 1.0)])
+    duty = _holds(levels, 50)
+    grid = VOCABULARY["dead_zone"].grid(_sig(duty, np.zeros(len(duty))), None)["cracking_pct"]
+    shut = [int(np.sum(duty <= c)) for c in grid]
+    assert len(set(shut)) == len(shut)
+    for level in levels[levels <= 40.0 + 0.8 * np.ptp(levels)]:
+        assert np.any((grid > level) & (grid < level + 1e-3))
+
+
+def test_dead_zone_cracking_settles_over_shut_held_levels():
+    # shut held levels above a cracking duty set too low (a PI censored at zero closes by itself
+    # over them) move it up to the last of them; a continuous excitation leaves it where the fit put it
+    dz = VOCABULARY["dead_zone"]
+    duty = _holds([50.0, 56.8, 60.0, 58.8, 59.0, 62.0, 54.0, 64.0])
+    flow = np.where(duty <= 58.8, 0.0, 100.0 + 5.0 * (duty - 59.0))
+    flow = flow + np.random.default_rng(5).normal(0, 0.5, len(duty))
+    settled = dz.settle(_sig(duty, flow), {"cracking_pct": 55.0}, {})["cracking_pct"]
+    assert 58.8 < settled < 59.0
+    ramp = np.r_[np.linspace(30, 70, 2000), np.linspace(70, 30, 2000)]
+    closing = np.clip((ramp - 35) * 4, 0, None)  # a valve closing by itself at 35 %
+    assert dz.settle(_sig(ramp, closing), {"cracking_pct": 33.0}, {}) == {"cracking_pct": 33.0}
+
+
+def test_coil_rise_beyond_copper_is_named_with_a_caveat():
+    coil = VOCABULARY["coil_heating"]
+    assert coil.caveat({"rise55_k": 30.0, "tau_s": 100.0}) is None
+    assert coil.implausible({"rise55_k": 150.0}) is None
+    assert "more than a coil's copper" in coil.caveat({"rise55_k": 150.0, "tau_s": 100.0})
+    # a measured temperature is the coil's own: no caveat on the rise it shows
+    assert coil.caveat({"copper_law_ratio": 1.0, "rise55_k": 150.0}) is None
+
+
 def test_saturation_needs_the_flow_to_flatten():
     sat = VOCABULARY["saturation"]
     duty = np.linspace(40, 70, 3000)

@@ -216,6 +216,7 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         "augmented": {"effects": {f.effect: f.params for f in findings},
                       "units": {f.effect: VOCABULARY[f.effect].units for f in findings},
                       "plausible": {f.effect: VOCABULARY[f.effect].plausible for f in findings},
+                      "caveats": {f.effect: c for f in findings if (c := VOCABULARY[f.effect].caveat(f.params))},
                       "holdout": metrics(y[hold], augmented[hold]).to_dict()},
         "rejected": {w: explain(d) for w, d in last.items() if w not in named},
         "not_identifiable": {**sel.not_identifiable, **_invisible(sel, named, base, sig, folds)},
@@ -352,9 +353,10 @@ def _finding(step, params: dict, margins: Margins, raw, y, hold, before, after, 
     eff = VOCABULARY[step.word]
     ptxt = ", ".join(f"{k} = {v:.4g} {eff.units.get(k, '')}".rstrip() for k, v in params.items())
     slope, corr = follows((y - before)[hold], (after - before)[hold])
+    caveat = eff.caveat(params)
     evidence = (f"{eff.physics}; {step.law} law; held-out squared error {-100 * step.gain:.1f} % over "
                 f"{len(step.test_after)} blocked folds (margin -{100 * margins.gain[step.word]:.1f} %), lower in "
                 f"{step.wins} of them; holdout residual against the correction: slope {slope:.2f}, correlation "
-                f"{corr:.2f}; fitted {ptxt} (plausible){note}")
+                f"{corr:.2f}; fitted {ptxt} (plausible{f'; but {caveat}' if caveat else ''}){note}")
     return Finding(step.word, where(raw.t_s, raw.duty_pct, y, after - before), evidence, round(float(step.gain), 6),
                    _rmse((before - y)[hold]), _rmse((after - y)[hold]), params, alternative_to, slope, corr)

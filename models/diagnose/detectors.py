@@ -265,6 +265,16 @@ def _inside(params: dict, box: dict) -> bool:
     return all(lo * AT_BOUND < params[k] < hi / AT_BOUND for k, (lo, hi) in box.items() if k in params)
 
 
+def _at_upper_bound(w: Word, params: dict, sig: Signals, base: Base) -> str | None:
+    """Why an exact law refined onto the upper bound of its box is not resolved, or ``None``: it
+    wanted more than its law can be (a heating whose time constant is four times the recording
+    shows none of its curvature, a slow drift read as heat; a coil twice its cold resistance)."""
+    box = w.bounds(sig, base) if w.is_exact(params) else {}
+    over = [f"{k} = {params[k]:.4g} at the upper bound {hi:g} of its refinement" for k, (lo, hi) in box.items()
+            if k in params and params[k] >= hi / AT_BOUND]
+    return "; ".join(f"{o}: not resolved" for o in over) or None
+
+
 def _coef(word: str, d: Design, theta: np.ndarray) -> float | None:
     """The fitted coefficient of ``word``'s (first) column, or ``None`` when it has none."""
     return float(theta[d.names.index(word)]) if word in d.names else None
@@ -507,7 +517,7 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds) -> None:
             continue
         d, b = design(step.word, sel.reference, sig, chain, folds)
         phys = w.physical(new, _coef(step.word, d, fit_final(d, sig.flow_lpm, folds.train)), sig, b)
-        if w.implausible(phys) or w.not_resolved(new, sig, b):
+        if w.implausible(phys) or w.not_resolved(new, sig, b) or _at_upper_bound(w, new, sig, b):
             continue
         sel.chain, sel.params[step.word], step.params = chain, phys, new
         changed = True
@@ -620,12 +630,13 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
     ``(outcome, why)`` when they are not physical, not resolved, or the recording does not show the law."""
     w = VOCABULARY[c.word]
     b = cur if w.joint_with_pi else c.base or cur
-    params = c.params if c.refined else refine(c.word, chain, c.params, b, sig, folds)
+    params = w.settle(sig, c.params if c.refined else refine(c.word, chain, c.params, b, sig, folds), chain)
     full = {**chain, c.word: params}
     d, b = design(c.word, b, sig, full, folds)
     theta = fit_final(d, sig.flow_lpm, folds.train)
     phys = w.physical(params, _coef(c.word, d, theta), sig, b)
-    why = w.implausible(phys) or w.not_resolved(params, sig, b) or _within_phase(c.word, params, chain, sig)
+    why = (w.implausible(phys) or w.not_resolved(params, sig, b) or _at_upper_bound(w, params, sig, b)
+           or _within_phase(c.word, params, chain, sig))
     if why:
         return NOT_PHYSICAL, why
     d0 = build(cur, sig, chain)
