@@ -180,6 +180,11 @@ class Word:
                for k, (lo, hi) in self.plausible.items() if k in phys and not lo <= phys[k] <= hi]
         return "; ".join(bad) or None
 
+    def within_physics(self, params: dict) -> bool:
+        """Whether the exact law's ``params`` stay where the word's physics alone reaches (else it is
+        named with :meth:`caveat`, when no setting within it explains nearly as much)."""
+        return True
+
     def caveat(self, phys: dict) -> str | None:
         """What a user should know of a plausible finding's size (beyond what the word's physics
         alone can reach), or ``None``."""
@@ -337,6 +342,9 @@ class CoilHeating(Word):
         elif "rise55_k" not in p:
             p["rise55_k"] = float(coef)
         return p
+
+    def within_physics(self, params):
+        return params.get("rise55_k", 0.0) <= MAX_RISE55_K
 
     def caveat(self, phys):
         rise = phys.get("rise55_k")
