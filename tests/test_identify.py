@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.identify.analysis import identify
+from controller.identify.analysis import coil_referred_duty, identify
 from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, static_flow, step_model, step_rows
 from controller.identify.estimate import estimate
 from controller.identify.protocol import Program, ProtocolParams, working_range
@@ -264,3 +264,27 @@ def test_reading_the_profile_ahead_by_tau_ln2_lowers_the_iae_of_a_lagged_valve()
     r = simulate.response(simulate.stack_params(built), [plant], ref, RATE, 0, np.array(steps))
     iae = np.sum(np.abs(r.true_flow_lpm - r.ref_lpm), axis=1) * r.dt_s / 60.0
     assert iae[1] < 0.9 * iae[0] and iae[1] < iae[2]
+
+
+def test_the_duty_referred_to_the_coils_first_reading_is_the_duty_the_magnetics_saw():
+    # a coil that warms by up to 40 K within seconds (the plant's physics: current = V d / R(T)); referred to
+    # the coil's first reading (ambient), the commanded duty through the cold valve's model gives the flow
+    params = load_plant("config/plant.toml", effects={"coil_heating": 40.0}, coil_tau_s=3.0)
+    t = np.arange(0.0, 12.0, 1.0 / RATE)
+    duty = 55.0 + 15.0 * np.sin(2 * np.pi * 0.4 * t) * np.minimum(t / 4.0, 1.0)
+    out = Plant(params, RATE, seed=0).simulate(duty)
+    referred, t0 = coil_referred_duty(duty, out["coil_temp_c"])
+    assert t0 == pytest.approx(params.ambient_c) and out["coil_temp_c"].max() > t0 + 20.0
+    xs = params.model.x_scale
+    inside = np.abs(referred - xs.center) < xs.half_range  # the plant extends the model below its range
+    assert inside.mean() > 0.8
+    lo, hi = xs.center - xs.half_range, xs.center + xs.half_range
+
+    def model_flow(d):  # the plant's model sees the duty held to its range (and passes no reverse flow)
+        return np.maximum(params.model.predict(np.clip(d, lo, hi))[0], 0.0)
+
+    cold, as_commanded = model_flow(referred), model_flow(duty)
+    assert np.max(np.abs(cold - out["true_flow_lpm"])[inside]) < 1e-6
+    assert np.max(np.abs(as_commanded - out["true_flow_lpm"])[inside]) > 5.0
+    # no coil temperature read: the duty as commanded
+    assert coil_referred_duty(duty, np.full(len(duty), np.nan)) == (duty, None)

@@ -129,7 +129,7 @@ def run(args) -> int:
         sys.stderr.write(f"valvectl identify: {exc}\n")
         return 1
     report = write_report(out, res, ident, tuning)
-    summ = summary_json(res, est, dyn, tuning, ident.damage)
+    summ = summary_json(res, est, dyn, tuning, ident.damage, ident.coil_ref_c)
     write_json_atomic(os.path.join(out, "identify.json"), summ)
     v = summ["validation"]
     print(f"identified in {res.duration_s:.0f} s: range {res.working_range.lo_pct:.1f}..{res.working_range.hi_pct:.1f} %, "

@@ -28,9 +28,10 @@ PHASE_COLORS = {"range": "tab:gray", "sweep": "tab:blue", "reversals": "tab:purp
 
 
 def summary_json(res: SessionResult, est: Estimate | None = None, dyn: Dynamics | None = None,
-                 tuning=None, damage: Damage | None = None) -> dict:
+                 tuning=None, damage: Damage | None = None, coil_ref_c: float | None = None) -> dict:
     """identify.json (DESIGN.md): ``model, validation, tau_s, delay_s, duration_s, aborted``, then details
-    (``timeline``: what a busy machine cost the recording, :meth:`.timeline.Damage.to_json`)."""
+    (``timeline``: what a busy machine cost the recording, :meth:`.timeline.Damage.to_json`; ``coil_ref_c``:
+    the coil temperature the models' duty is referred to, when the valve published one)."""
     out = {
         "model": est.chosen if est else None,
         "validation": est.results[est.chosen].validation.to_dict() if est else None,
@@ -53,6 +54,8 @@ def summary_json(res: SessionResult, est: Estimate | None = None, dyn: Dynamics 
         out["gains"] = {w: b["params"] for w, b in tuning.best.items()}
     if damage:
         out["timeline"] = damage.to_json()
+    if coil_ref_c is not None:
+        out["coil_ref_c"] = coil_ref_c
     out.update(steps=res.steps, overruns=res.overruns, faults=res.faults)
     return out
 
@@ -135,7 +138,9 @@ def write_report(out_dir: str, res: SessionResult, ident, tuning) -> str:
         "",
         "## Table 1: models fitted on the sweep, validated on the held-out steps",
         "Figures in L/min against the measured flow (sensor noise included), every model behind the lag "
-        "and delay above.",
+        "and delay above" + ("." if ident.coil_ref_c is None else
+                             f", on the duty the magnetics saw referred to the coil at {ident.coil_ref_c:.1f} °C "
+                             "(its first reading; copper +0.393 %/K)."),
         "",
         table(est),
         "",
