@@ -20,7 +20,7 @@ def recording(n, seed):
     return t, duty, flow, phase
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(n=st.integers(50, 3000), seed=st.integers(0, 10_000), late=st.floats(0.0, 0.7), early=st.floats(0.0, 0.2))
 def test_a_recording_without_missed_periods_maps_row_for_row(n, seed, late, early):
     t, duty, flow, phase = recording(n, seed)
@@ -38,7 +38,7 @@ def test_a_recording_without_missed_periods_maps_row_for_row(n, seed, late, earl
     assert d.missed == 0 and d.stalls == 0 and verdict(d)[0] == "ok"
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(n=st.integers(200, 3000), seed=st.integers(0, 10_000), stalls=st.lists(st.integers(1, 60), max_size=12))
 def test_missed_periods_hold_the_duty_and_are_counted(n, seed, stalls):
     t, duty, flow, phase = recording(n, seed)

@@ -26,12 +26,12 @@ phases' and of the steps' time not observed. :func:`verdict` turns it into
 ``ok``, ``degraded`` (said, the identification made) or ``damaged``
 (refused: no model from it). Hysteresis is rate independent and the duty
 the valve held is known through every stall, so an identification on the
-timeline survives a lot: emulated in-process against the bench twin (2
-minutes, stalls at random, the valve running on), its held-out RMSE was
-1.38 L/min with 47 % of the periods missed in 8 ms stalls, 1.37 with 37 %
-in stalls of 150 ms on average (up to 1 s), 2.10 and 1.49 with 53 % and 78 %
-in 60 ms stalls, against 1.39 from a clean session; the rows taken as evenly
-spaced instead gave 2.57 with 47 % missed.
+timeline survives a lot (``bench/bench_identify_load.py``: 2 minutes in-process,
+stalls at random, the valve running on through them): held-out RMSE against
+the bench twin 1.38 L/min with 47 % of the periods missed in 8 ms stalls,
+2.10 and 1.49 with 53 % and 78 % missed in 60 ms stalls, 1.39 from a clean
+session (PVP twin: 0.48, 0.51, 0.52; clean 0.46); the rows taken as evenly
+spaced instead gave 2.57, 2.06, 6.42 (PVP 5.09, 1.66, 3.50).
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ STALL_PERIODS = 2.5
 #: Missed share of the session's periods from which the identification says it was disturbed.
 DEGRADED_MISSED = 0.10
 #: Unobserved share of the fitted phases' (or of the steps') time above which nothing is identified: beyond
-#: the 78 % measured to still identify the bench twin (module docstring), there is little left to fit on.
+#: the 78 % measured to still identify both twins (module docstring), there is little left to fit on.
 DAMAGED_UNOBSERVED = 0.85
 
 
