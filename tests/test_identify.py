@@ -54,7 +54,7 @@ def session_60s():
 @given(duration=st.floats(10.0, 900.0), lo=st.floats(0.0, 40.0), width=st.floats(30.0, 60.0))
 def test_protocol_keeps_duty_limits_and_duration(duration, lo, width):
     hi = min(lo + width, 100.0)
-    rate = 20.0  # any rate: the protocol is planned in valve time
+    rate = 10.0  # any rate: the protocol is planned in valve time
     prog = Program(ProtocolParams(duration, rate, lo, hi))
     flow = 0.0
     duty, t = [], 0.0
