@@ -1,6 +1,7 @@
 """valvectl identify in-process: protocol, safety rules, lag and delay, model choice (SimClock, no Zenoh)."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.identify.analysis import coil_referred_duty, identify
+from controller.identify.analysis import coil_referred_duty, damage_of, identify
 from controller.identify.dynamics import dynamics_from_steps, fit_step, noise_std, static_flow, step_model, step_rows
 from controller.identify.estimate import estimate
 from controller.identify.protocol import Program, ProtocolParams, working_range
@@ -224,6 +225,10 @@ def test_stale_measurement_and_stop_abort():
     prog = Program(ProtocolParams(duration_s=30.0, rate_hz=RATE))
     res = run_session(prog, Silent(twin(), after_s=5.0), Safety(stale_s=0.1), RATE, SimClock())
     assert res.aborted and res.reason == "stale"
+    # what identify.json says of it: the readings' last 0.1 s missing, every period commanded
+    d = damage_of(res, RATE).to_json()
+    assert d["missed"] == 0 and d["longest_gap_ms"] == pytest.approx(100.0, abs=2.0)
+    assert json.loads(json.dumps(d, allow_nan=False)) == d
     assert res.duration_s == pytest.approx(5.1, abs=0.01) and res.columns["duty_pct"][-1] == 0.0
     calls = []
     res = run_session(Program(ProtocolParams(duration_s=30.0, rate_hz=RATE)), SimTransport(twin()),

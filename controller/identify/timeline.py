@@ -83,7 +83,8 @@ class Damage:
     unobserved_fit_share, unobserved_steps_share : float
         The same share over the fitted phases and over the steps.
     longest_gap_ms : float
-        Longest time between two fresh readings, ms.
+        Longest time between two fresh readings (or from the start to the first, or from the last to
+        the end), ms.
     """
 
     periods: int
@@ -158,11 +159,11 @@ def damage(tl: Timeline, fit_phases: tuple[str, ...], steps_phase: str) -> Damag
     def share(of):
         return float(np.mean(unseen[of])) if of.any() else 0.0
 
-    gaps = np.diff(np.flatnonzero(tl.fresh))
+    gaps = np.diff(np.r_[0, np.flatnonzero(tl.fresh), n - 1])  # from the start and to the end too
     return Damage(n, int(missed.sum()), len(starts),
                   float(np.max(ends - starts + 1)) * 1e3 / tl.rate_hz if len(starts) else 0.0,
                   float(np.mean(unseen)), share(np.isin(tl.phase, fit_phases)), share(tl.phase == steps_phase),
-                  float(gaps.max()) * 1e3 / tl.rate_hz if len(gaps) else float("inf"))
+                  float(gaps.max()) * 1e3 / tl.rate_hz)
 
 
 def verdict(d: Damage) -> tuple[str, str | None]:
