@@ -60,6 +60,7 @@ class Loop(_Section):
     cpu: Annotated[int, msgspec.Meta(ge=-1, le=4095)] = -1
     trigger: Literal["period", "measurement"] = "period"
     rehearse: bool = True
+    catch_up: bool = True
 
     def __post_init__(self):
         if self.status_hz > self.rate_hz:
@@ -215,7 +216,7 @@ class RunConfig:
         return LoopSettings(rate_hz=lp["rate_hz"], stale_ms=lp["stale_ms"], ref_stale_ms=lp["ref_stale_ms"],
                             safe_duty_pct=lp["safe_duty_pct"], flow_max_lpm=lp["flow_max_lpm"],
                             status_hz=lp["status_hz"], spin_s=lp["spin_us"] * 1e-6, rt_priority=lp["rt_priority"],
-                            cpu=lp["cpu"], trigger=lp["trigger"], rehearse=lp["rehearse"],
+                            cpu=lp["cpu"], trigger=lp["trigger"], rehearse=lp["rehearse"], catch_up=lp["catch_up"],
                             alarms=AlarmSettings(**self["alarms"]), fallback=SupervisorSettings(**self["fallback"]))
 
 

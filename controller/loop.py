@@ -3,10 +3,13 @@
 Scheduling: absolute deadlines ``next += period`` on ``time.perf_counter``,
 slept to ``spin_s`` before the deadline and spun from there (sleep alone wakes
 ~0.1-0.2 ms late with a long tail; the spin costs about spin/period of a
-core). A step that ends after the next deadline skips the missed deadlines and
-counts each as an overrun (as ros2_control's controller manager does), so the
-loop never tries to catch up with a burst of steps. The garbage collector is
-frozen and disabled while the loop runs (:func:`gc_paused`).
+core). A deadline whose whole period passed before a step could start for it
+is skipped and counted as an overrun; a step that ends after the next deadline
+but within its period lets that deadline's step start at once, late
+(``catch_up``, :func:`deadlines_missed`: a POSIX timer's overrun count), so the
+loop never runs a burst of steps to catch up, and never drops a period it can
+still serve. Each step's lateness (start - deadline) is recorded. The garbage
+collector is frozen and disabled while the loop runs (:func:`gc_paused`).
 
 Trigger (``[loop] trigger``): ``period`` steps at every deadline, as above;
 ``measurement`` steps as each measurement arrives, on the transport's own
@@ -116,6 +119,15 @@ class LoopSettings:
         On the real clock: the CPU the loop's thread runs on while the loop runs, so that each step finds
         the caches of the CPU the previous one warmed (the scheduler otherwise wakes the thread wherever a
         CPU is free); -1: wherever the scheduler puts it.
+    catch_up : bool
+        When a step ends past the next deadline: True, that deadline's step
+        starts at once, late, and only deadlines whose whole period passed
+        without a step are skipped and counted as overruns (a POSIX timer's
+        overrun count, ``timer_getoverrun``); False, the next deadline is
+        skipped and counted too (ros2_control's controller manager). On this
+        VM the host freezes it ~1 ms at a time: a step woken 0.9 ms late then
+        ends just past the next deadline, which False drops (bench_load.py).
+        Lateness, steps and overruns are recorded as they happen either way.
     rehearse : bool
         On the real clock: rehearse the step's compiled calls on scratch
         copies just before the step is due, so that the step itself runs on
@@ -142,6 +154,7 @@ class LoopSettings:
     cpu: int = -1
     trigger: str = "period"
     rehearse: bool = True
+    catch_up: bool = True
     alarms: AlarmSettings = AlarmSettings()
     fallback: SupervisorSettings = SupervisorSettings()
 
@@ -165,6 +178,13 @@ REHEARSAL_S = 50e-6
 #: long before the next measurement is due (the last one's arrival plus a period): early enough that a measurement
 #: a little early rarely waits for it (~10-20 us), late enough that the caches are still warm when it comes.
 MEASUREMENT_REHEARSAL_S = 150e-6
+
+
+def deadlines_missed(late_s: float, period_s: float, catch_up: bool) -> int:
+    """Deadlines a fixed-rate loop skips and counts as overruns when it is ``late_s`` > 0 past a deadline it has
+    not started a step for (:attr:`LoopSettings.catch_up`): with ``catch_up``, those whose whole period has passed
+    (the step for the newest one starts at once, late); without, that newest one too."""
+    return int(late_s / period_s) + (0 if catch_up else 1)
 
 
 @contextlib.contextmanager
@@ -671,9 +691,19 @@ class Loop:
                         if reference_rehearse is not None:
                             reference_rehearse(deadline - t0)
 
+                catch_up = cfg.catch_up
                 deadline = t0
                 while True:
                     now = clock.wait_until(deadline, rehearse)
+                    if catch_up and now - deadline >= period:  # woken (a frozen host) after whole periods: missed
+                        missed = int((now - deadline) / period)
+                        if n_steps is not None:  # a run of n deadlines counts none past its end
+                            missed = min(missed, n_steps - steps)
+                            n_steps -= missed
+                        deadline += missed * period
+                        overruns += missed
+                        if n_steps is not None and steps >= n_steps:
+                            break
                     step(now, deadline)
                     if stop is not None and stop():
                         # the deadlines this last step woke past were missed too, though no step follows to count them
@@ -684,8 +714,8 @@ class Loop:
                     deadline += period
                     behind = clock.now() - deadline
                     if behind > 0:  # skip the deadlines already missed
-                        missed = int(behind / period) + 1
-                        if n_steps is not None:  # a run of n deadlines counts none past its end
+                        missed = deadlines_missed(behind, period, catch_up)
+                        if n_steps is not None:
                             missed = min(missed, n_steps - steps)
                             n_steps -= missed
                         deadline += missed * period

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .loop import gc_paused
+from .loop import deadlines_missed, gc_paused
 from .watchdog import Watchdog, in_range
 
 #: Publication times kept for the round trip, by ``seq`` modulo this (s of measurements at 1 kHz).
@@ -52,11 +52,13 @@ class NodeStats:
 class ValveNode:
     """Parameters: a plant (stepped at ``rate_hz``), a transport with ``poll_command(accept) ->
     (duty | None, n_bad, meas_seq | None)``, ``publish_flow(t_s, flow) -> seq`` and
-    ``publish_aux(t_s, {column: value})``, the command timeout (s), a clock and the rate of
-    the auxiliary measurements (Hz, 0: none)."""
+    ``publish_aux(t_s, {column: value})``, the command timeout (s), a clock, the rate of
+    the auxiliary measurements (Hz, 0: none) and the loop's rule for late steps
+    (:attr:`controller.loop.LoopSettings.catch_up`)."""
 
-    def __init__(self, plant, transport, rate_hz: float, command_timeout_s: float, clock, aux_hz: float = 0.0):
-        self.plant, self.transport, self.rate_hz = plant, transport, rate_hz
+    def __init__(self, plant, transport, rate_hz: float, command_timeout_s: float, clock, aux_hz: float = 0.0,
+                 catch_up: bool = True):
+        self.plant, self.transport, self.rate_hz, self.catch_up = plant, transport, rate_hz, catch_up
         self.timeout_s, self.clock = command_timeout_s, clock
         self.aux_every = max(1, int(round(rate_hz / aux_hz))) if aux_hz > 0 else 0
         self.stats = NodeStats()
@@ -80,8 +82,13 @@ class ValveNode:
         sent_t = np.full(SEQ_RING, np.nan)  # publication time of measurement seq, at seq % SEQ_RING
         sent_seq = np.full(SEQ_RING, -1, dtype=np.int64)
         last_published = t0
+        catch_up = self.catch_up
         while True:
             now = clock.wait_until(deadline)
+            if catch_up and now - deadline >= period:  # woken after whole periods: missed (controller.loop)
+                missed = int((now - deadline) / period)
+                deadline += missed * period
+                st.overruns += missed
             t = now - t0
             v, bad, meas_seq = self.transport.poll_command(accept)
             st.bad_commands += bad
@@ -110,6 +117,6 @@ class ValveNode:
             deadline += period
             behind = clock.now() - deadline
             if behind > 0:
-                missed = int(behind / period) + 1
+                missed = deadlines_missed(behind, period, catch_up)
                 deadline += missed * period
                 st.overruns += missed

@@ -139,11 +139,55 @@ class LateClock(SimClock):
         return self.t
 
 
-def test_missed_deadlines_are_skipped_and_counted(cfg, model):
-    res = run(cfg, model, duration=0.5, clock=LateClock(100, 3.5))
-    assert res.overruns == 3
+class LateWakeClock(SimClock):
+    """A simulated clock that wakes the loop for its step ``late_at`` ``periods`` periods past the deadline (a host
+    that froze the machine while the loop slept)."""
+
+    def __init__(self, late_at, periods):
+        super().__init__()
+        self.late_at, self.periods, self.waits = late_at, periods, 0
+
+    def wait_until(self, deadline, rehearse=None):
+        self.waits += 1
+        if self.waits == self.late_at + 1:
+            self.t = deadline + self.periods / RATE
+        return super().wait_until(deadline, rehearse)
+
+
+@pytest.mark.parametrize("catch_up", [True, False])
+def test_missed_deadlines_are_skipped_and_counted(cfg, model, catch_up):
+    """A step computes for 3.5 periods: the next two deadlines pass whole without a step. With catch_up the step
+    of the third starts at once, half a period late; without, it is skipped too. Every deadline is a step or an
+    overrun."""
+    import dataclasses
+
+    res = run(cfg, model, duration=0.5, clock=LateClock(100, 3.5),
+              settings=dataclasses.replace(SETTINGS, catch_up=catch_up))
+    assert res.overruns == (2 if catch_up else 3)
     assert res.steps + res.overruns == 500
+    late = res.columns["lateness_s"]
+    if catch_up:
+        assert np.count_nonzero(late > 1e-12) == 1 and late.max() == pytest.approx(0.5 / RATE)
+    else:
+        assert np.all(late < 1e-12)
     assert np.all(np.diff(res.columns["t_s"]) > 0)
+
+
+@pytest.mark.parametrize("catch_up", [True, False])
+def test_a_loop_woken_past_whole_periods_counts_them_and_never_reports_a_step_a_period_late(cfg, model, catch_up):
+    """Woken 2.7 periods past deadline 100: with catch_up, 100 and 101 passed whole (overruns) and the step serves
+    102, 0.7 periods late; without, it serves 100, 2.7 periods late, and skips 101 and 102. Either way each
+    deadline is a step or an overrun, and the step's lateness is recorded as it was."""
+    import dataclasses
+
+    res = run(cfg, model, duration=0.5, clock=LateWakeClock(100, 2.7),
+              settings=dataclasses.replace(SETTINGS, catch_up=catch_up))
+    assert res.overruns == 2
+    assert res.steps + res.overruns == 500
+    late = res.columns["lateness_s"]
+    assert late[100] == pytest.approx((0.7 if catch_up else 2.7) / RATE)
+    if catch_up:
+        assert np.all(late < 1 / RATE)
 
 
 def test_record_is_a_recording_with_one_row_per_step_and_summary_has_the_design_keys(cfg, model, tmp_path):
@@ -201,7 +245,7 @@ def test_the_simulated_valve_keeps_time_through_missed_deadlines(cfg, model):
     """After skipped deadlines the plant has stepped once per elapsed period, not once per loop step."""
     transport = SimTransport(sim_plant(cfg))
     res = run(cfg, model, transport=transport, duration=0.5, clock=LateClock(100, 3.5))
-    assert res.overruns == 3
+    assert res.overruns == 2  # the step ran 3.5 periods: two passed whole (catch_up)
     assert transport.state.k == 1 + res.steps + res.overruns  # the initial read, then one step per period
 
 
@@ -480,21 +524,23 @@ def test_the_loop_and_the_valve_node_run_with_the_collector_paused_and_restore_i
     assert gc.isenabled() and gc.get_freeze_count() == 0
 
 
-def test_the_valve_node_reports_its_longest_gap_between_measurements(cfg):
-    """A node that stands still (here: one publication taking 70 ms) reports that gap, so a controller's stale
-    fault can be told apart from a transport that lost the measurements."""
+@pytest.mark.parametrize("catch_up", [True, False])
+def test_the_valve_node_reports_its_longest_gap_between_measurements(cfg, catch_up):
+    """A node that stands still (here: one publication taking 70.5 ms) reports that gap, so a controller's stale
+    fault can be told apart from a transport that lost the measurements. The deadlines it stood still over count
+    as the loop's do (catch_up: the one in progress when it resumes is served at once)."""
     from controller.valve_node import ValveNode
 
     clock = SimClock()
 
     def stand_still(seq):
         if seq == 6:
-            clock.t += 0.070
+            clock.t += 0.0705
 
-    st = ValveNode(sim_plant(cfg), NodeLink(stand_still), RATE, 0.1, clock).run(0.2)
-    assert st.publish_gap_max_s == pytest.approx(0.070 + 1 / RATE)
-    assert st.to_json()["publish_gap_ms"]["max"] == pytest.approx(71.0)
-    assert st.overruns == 70
+    st = ValveNode(sim_plant(cfg), NodeLink(stand_still), RATE, 0.1, clock, catch_up=catch_up).run(0.2)
+    assert st.publish_gap_max_s == pytest.approx(0.0705 + 1 / RATE)
+    assert st.to_json()["publish_gap_ms"]["max"] == pytest.approx(71.5)
+    assert st.overruns == (69 if catch_up else 70)
 
 
 def _can_fifo() -> bool:

@@ -45,7 +45,8 @@ def run(args) -> int:
     session = open_session(cfg, args.listen, args.connect, role="valve", certs=args.certs)
     transport = ValveNodeTransport(session, cfg["zenoh"]["id"])
     node = ValveNode(plant, transport, node_cfg["rate_hz"], node_cfg["command_timeout_ms"] * 1e-3,
-                     RealClock(cfg["loop"]["spin_us"] * 1e-6), aux_hz=node_cfg["aux_hz"])
+                     RealClock(cfg["loop"]["spin_us"] * 1e-6), aux_hz=node_cfg["aux_hz"],
+                     catch_up=cfg["loop"]["catch_up"])
     try:
         with realtime(cfg["loop"]["rt_priority"]):
             st = node.run(duration, stop=lambda: bool(stopping))

@@ -36,7 +36,7 @@ class SimTransport:
         self._meas = out.flow_lpm
         self.last = out
         self._duty = duty0_pct
-        self._t = None  # time of the last command, s
+        self._k = None  # period of the last command (t_s / period, whole)
 
     @property
     def state(self):
@@ -57,10 +57,13 @@ class SimTransport:
         while self._injections and self._injections[0][0] <= t_s + 1e-9:
             _, name, value = self._injections.pop(0)
             self.plant.retune(**{name: value})
-        if self._t is not None and (t_s - self._t) * self._rate_hz >= 1.5:  # missed periods
-            for _ in range(int(round((t_s - self._t) * self._rate_hz)) - 1):
+        # The period this step falls in: a step starts within its deadline's period (the loop's catch_up), so
+        # the valve steps once per period, missed ones (the duty held) included, however late the steps start.
+        k = int(t_s * self._rate_hz + 1e-6)
+        if self._k is not None and k - self._k > 1:  # missed periods
+            for _ in range(k - self._k - 1):
                 self._valve.step(self._duty)
-        self._t, self._duty = t_s, duty_pct
+        self._k, self._duty = k, duty_pct
         self.last = self._valve.step(duty_pct)
         self._meas = self.last.flow_lpm
 
