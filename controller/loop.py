@@ -693,17 +693,22 @@ class Loop:
 
                 catch_up = cfg.catch_up
                 deadline = t0
+
+                def skip(missed: int) -> bool:
+                    """Count ``missed`` deadlines as overruns and move past them; True when the run is over."""
+                    nonlocal deadline, overruns, n_steps
+                    if n_steps is not None:  # a run of n deadlines counts none past its end
+                        missed = min(missed, n_steps - steps)
+                        n_steps -= missed
+                    deadline += missed * period
+                    overruns += missed
+                    return n_steps is not None and steps >= n_steps
+
                 while True:
                     now = clock.wait_until(deadline, rehearse)
-                    if catch_up and now - deadline >= period:  # woken (a frozen host) after whole periods: missed
-                        missed = int((now - deadline) / period)
-                        if n_steps is not None:  # a run of n deadlines counts none past its end
-                            missed = min(missed, n_steps - steps)
-                            n_steps -= missed
-                        deadline += missed * period
-                        overruns += missed
-                        if n_steps is not None and steps >= n_steps:
-                            break
+                    # woken (a frozen host) after whole periods: missed, the step serves the newest deadline
+                    if catch_up and now - deadline >= period and skip(int((now - deadline) / period)):
+                        break
                     step(now, deadline)
                     if stop is not None and stop():
                         # the deadlines this last step woke past were missed too, though no step follows to count them
@@ -713,15 +718,8 @@ class Loop:
                         break
                     deadline += period
                     behind = clock.now() - deadline
-                    if behind > 0:  # skip the deadlines already missed
-                        missed = deadlines_missed(behind, period, catch_up)
-                        if n_steps is not None:
-                            missed = min(missed, n_steps - steps)
-                            n_steps -= missed
-                        deadline += missed * period
-                        overruns += missed
-                        if n_steps is not None and steps >= n_steps:
-                            break
+                    if behind > 0 and skip(deadlines_missed(behind, period, catch_up)):  # the deadlines missed
+                        break
         finally:
             rt.close()
         return LoopResult(cols.trimmed(), faults, steps, overruns, cfg, alarms)
