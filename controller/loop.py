@@ -187,6 +187,40 @@ def deadlines_missed(late_s: float, period_s: float, catch_up: bool) -> int:
     return int(late_s / period_s) + (0 if catch_up else 1)
 
 
+class Deadlines:
+    """A fixed-rate loop's absolute deadlines (``next``), moved past the missed ones by :func:`deadlines_missed`.
+
+    The one rule for the loops that keep their own schedule (the valve node, the identification session; the
+    control loop applies the same function itself): :meth:`woken` at each wake, :meth:`ended` after each step;
+    each returns the deadlines it skipped, to be counted as overruns. Every deadline is then a step or an overrun.
+    """
+
+    __slots__ = ("next", "period", "catch_up")
+
+    def __init__(self, t0: float, period_s: float, catch_up: bool = True):
+        self.next, self.period, self.catch_up = t0, period_s, catch_up
+
+    def woken(self, now: float) -> int:
+        """Woken at ``now`` for ``next``: with ``catch_up``, the deadlines whose whole period passed are missed and
+        the step serves the newest, late by less than a period; without, none (the step serves ``next``, late)."""
+        late = now - self.next
+        if not self.catch_up or late < self.period:
+            return 0
+        missed = deadlines_missed(late, self.period, True)
+        self.next += missed * self.period
+        return missed
+
+    def ended(self, now: float) -> int:
+        """The step for ``next`` ended at ``now``: on to the following deadline, past those already missed."""
+        self.next += self.period
+        late = now - self.next
+        if late <= 0:
+            return 0
+        missed = deadlines_missed(late, self.period, self.catch_up)
+        self.next += missed * self.period
+        return missed
+
+
 @contextlib.contextmanager
 def realtime(priority: int):
     """Run the calling thread under ``SCHED_FIFO`` at ``priority`` (0: unchanged) and restore it after."""
@@ -707,7 +741,7 @@ class Loop:
                 while True:
                     now = clock.wait_until(deadline, rehearse)
                     # woken (a frozen host) after whole periods: missed, the step serves the newest deadline
-                    if catch_up and now - deadline >= period and skip(int((now - deadline) / period)):
+                    if catch_up and now - deadline >= period and skip(deadlines_missed(now - deadline, period, True)):
                         break
                     step(now, deadline)
                     if stop is not None and stop():

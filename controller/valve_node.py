@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .loop import deadlines_missed, gc_paused
+from .loop import Deadlines, gc_paused
 from .watchdog import Watchdog, in_range
 
 #: Publication times kept for the round trip, by ``seq`` modulo this (s of measurements at 1 kHz).
@@ -78,17 +78,13 @@ class ValveNode:
         clock = self.clock
         t0 = clock.now()
         dog = Watchdog(self.timeout_s, 0.0)
-        deadline = t0
+        deadlines = Deadlines(t0, period, self.catch_up)
         sent_t = np.full(SEQ_RING, np.nan)  # publication time of measurement seq, at seq % SEQ_RING
         sent_seq = np.full(SEQ_RING, -1, dtype=np.int64)
         last_published = t0
-        catch_up = self.catch_up
         while True:
-            now = clock.wait_until(deadline)
-            if catch_up and now - deadline >= period:  # woken after whole periods: missed (controller.loop)
-                missed = int((now - deadline) / period)
-                deadline += missed * period
-                st.overruns += missed
+            now = clock.wait_until(deadlines.next)
+            st.overruns += deadlines.woken(now)  # woken after whole periods: missed (controller.loop)
             t = now - t0
             v, bad, meas_seq = self.transport.poll_command(accept)
             st.bad_commands += bad
@@ -114,9 +110,4 @@ class ValveNode:
             st.compute_max_s = max(st.compute_max_s, clock.now() - now)
             if (duration_s is not None and t >= duration_s) or (stop is not None and stop()):
                 return st
-            deadline += period
-            behind = clock.now() - deadline
-            if behind > 0:
-                missed = deadlines_missed(behind, period, catch_up)
-                deadline += missed * period
-                st.overruns += missed
+            st.overruns += deadlines.ended(clock.now())

@@ -221,6 +221,61 @@ def test_a_session_that_stalled_longer_than_stale_aborts_to_the_safe_duty():
     assert not res.aborted and res.overruns >= 199
 
 
+class SlowStep(SimTransport):
+    """The valve, with the session's command at step ``at`` taking ``step_periods`` periods (the clock runs on)
+    and its wake before step ``late_at`` coming ``wake_periods`` periods late."""
+
+    def __init__(self, plant, clock, at=-1, step_periods=0.0, late_at=-1, wake_periods=0.0):
+        super().__init__(plant)
+        self.clock, self.at, self.step_periods, self.n = clock, at, step_periods, 0
+        self.late_at, self.wake_periods = late_at, wake_periods
+        wait = clock.wait_until
+
+        def wait_until(deadline):
+            t = wait(deadline)
+            if self.n == self.late_at:
+                clock.t = t = deadline + self.wake_periods / RATE
+            return t
+
+        clock.wait_until = wait_until
+
+    def command(self, duty_pct, t_s):
+        super().command(duty_pct, t_s)
+        if self.n == self.at:
+            self.clock.t += self.step_periods / RATE
+        self.n += 1
+
+
+@pytest.mark.parametrize("catch_up", [True, False])
+@pytest.mark.parametrize("stall", [dict(at=3000, step_periods=1.5), dict(at=3000, step_periods=3.5),
+                                   dict(late_at=3000, wake_periods=2.7)], ids=["step 1.5", "step 3.5", "wake 2.7"])
+def test_a_session_counts_missed_deadlines_by_the_loops_rule(catch_up, stall):
+    """The session's schedule is the control loop's (controller.loop.Deadlines): a deadline is an overrun only
+    when its whole period passed without a step; with catch_up a step that ends past the next deadline lets that
+    deadline's step start at once, late, and a wake past whole periods serves the newest deadline. Without
+    catch_up (the former rule) the deadline after a late step is skipped too. Every deadline is a step or an
+    overrun, and the timeline the identification reads misses exactly the overruns."""
+    from controller.loop import deadlines_missed
+
+    clock = SimClock()
+    res = run_session(Program(ProtocolParams(duration_s=10.0, rate_hz=RATE)), SlowStep(twin(), clock, **stall),
+                      Safety(), RATE, clock, catch_up=catch_up)
+    assert not res.aborted
+    if "step_periods" in stall:  # the step ends step_periods - 1 past the next deadline
+        expected = {1.5: (0, 1), 3.5: (2, 3)}[stall["step_periods"]][0 if catch_up else 1]
+        assert expected == deadlines_missed((stall["step_periods"] - 1) / RATE, 1 / RATE, catch_up)
+    else:  # woken 2.7 periods late: two whole periods passed either way
+        expected = 2
+    assert res.overruns == expected
+    t = res.columns["t_s"]
+    assert int(t[-1] * RATE + 1e-6) == res.steps + res.overruns - 1  # the last row is in the last deadline's period
+    late = t * RATE - np.round(t * RATE)  # each row's lateness past its grid time, in periods
+    if catch_up:  # no row a period late, and the one after the stall late by what was left of its period
+        assert np.all(np.diff(t) > 0) and (t * RATE - np.floor(t * RATE + 1e-6)).max() < 1.0
+        assert np.count_nonzero(np.abs(late) > 1e-6) == 1
+    assert damage_of(res, RATE).missed == res.overruns
+
+
 def test_stale_measurement_and_stop_abort():
     prog = Program(ProtocolParams(duration_s=30.0, rate_hz=RATE))
     res = run_session(prog, Silent(twin(), after_s=5.0), Safety(stale_s=0.1), RATE, SimClock())

@@ -82,7 +82,8 @@ def run(args) -> int:
 
         with realtime(lp["rt_priority"]):
             res = run_session(Program(params), link, safety, rate, RealClock(lp["spin_us"] * 1e-6), writer,
-                              stop=lambda: bool(stopping), progress=progress, aux=aux)
+                              stop=lambda: bool(stopping), progress=progress, aux=aux,
+                              catch_up=lp["catch_up"])
         bar.close()
     finally:
         if writer is not None:

@@ -1,7 +1,11 @@
 """The open-loop identification session: command the protocol, record, and stop safely.
 
 Scheduling is the control loop's (:class:`controller.loop.RealClock`,
-absolute deadlines, missed periods skipped and counted). Per step:
+absolute deadlines, :class:`controller.loop.Deadlines`): a deadline whose
+whole period passed without a step is skipped and counted as an overrun; with
+``catch_up`` (``[loop] catch_up``) a step that ends past the next deadline, or
+a wake within the period of the newest one passed, serves it at once, late.
+Per step:
 
 1. take the newest measured flow (and supply pressure and coil temperature
    when the valve publishes them); malformed or out-of-range values are
@@ -28,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.loop import Deadlines
 from controller.watchdog import Faults, Watchdog, in_range
 from models.recording import InputError
 
@@ -109,7 +114,7 @@ def record_columns(aux: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def run_session(program: Program, transport, safety: Safety, rate_hz: float, clock, writer=None, stop=None,
-                progress=None, aux: tuple[str, ...] = ()) -> SessionResult:
+                progress=None, aux: tuple[str, ...] = (), catch_up: bool = True) -> SessionResult:
     """Run ``program`` against ``transport`` until it ends or a safety rule stops it.
 
     Parameters
@@ -130,6 +135,8 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
         ``progress(fraction, phase)`` about ten times a second.
     aux : tuple of str
         Auxiliary columns to record (of :data:`AUX_COLUMNS`).
+    catch_up : bool
+        The loop's rule for late steps (:attr:`controller.loop.LoopSettings.catch_up`).
     """
     period = 1.0 / rate_hz
     aux = tuple(a for a in AUX_COLUMNS if a in aux)
@@ -147,10 +154,11 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
     reason = message = None
     steps = overruns = 0
     t0 = clock.now()
-    deadline = t0
+    deadlines = Deadlines(t0, period, catch_up)
     t = t_sent = 0.0
     while True:
-        now = clock.wait_until(deadline)
+        now = clock.wait_until(deadlines.next)
+        overruns += deadlines.woken(now)
         t = now - t0
         v, rejects = transport.poll_measurement(accept)
         for kind, n in (rejects.items() if isinstance(rejects, dict) else (("bad_measurement", rejects),)):
@@ -200,12 +208,7 @@ def run_session(program: Program, transport, safety: Safety, rate_hz: float, clo
             progress(program.fraction, phase)
         if nxt is None:
             break
-        deadline += period
-        behind = clock.now() - deadline
-        if behind > 0:
-            missed = int(behind / period) + 1
-            deadline += missed * period
-            overruns += missed
+        overruns += deadlines.ended(clock.now())
     if reason:
         faults.add(reason, t)
     return SessionResult({c: v[:steps].copy() for c, v in cols.items()}, np.array(phases), reason is not None, reason,
