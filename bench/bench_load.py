@@ -12,6 +12,8 @@ Cases, each a `valvectl run --plant zenoh` against a `valvectl valve-node` for D
 * ``hogs, loop FIFO + io nice``: Zenoh's I/O threads at nice -20 instead (``[zenoh] io_nice``);
 * ``hogs, loop FIFO + io FIFO, skip late``: the shipped measures but ``catch_up = false``: a step that ends past
   the next deadline skips it and counts it (ros2_control's rule) instead of letting it start at once, late;
+* ``hogs, loop FIFO + io FIFO, mlockall``: the shipped measures with both processes' memory locked from their
+  start (``mlockall(MCL_CURRENT | MCL_FUTURE)``): whether page faults cost the loops any deadline;
 * with ``--flood``: a Zenoh reference at 100 Hz and a flood on one key, the shipped measures, no
   hogs: ``ref/flow``, ``meas/flow``, ``ctrl/mode``, ``meas/supply`` (the controller's keys) and
   ``cmd/duty`` (the valve node's, the flooder connected to the node), each with 1 MB payloads as
@@ -25,7 +27,13 @@ Printed per case: controller steps, overruns (and their share), stale faults dur
 valve-node steps, commands received per node step, command timeouts, round trip p50/p99 (node
 side: measurement published -> the command computed from it received), the node's longest gap between two
 published measurements, and the hypervisor's steal during the case (/proc/stat: time the VM's CPUs were
-frozen by the host; every loop misses its deadlines then). The node is stopped
+frozen by the host; every loop misses its deadlines then). The steal is set beside the controller's missed
+deadlines, each located in the recording (with ``catch_up`` a step starts within its own deadline's period, so
+a row's deadline is the period it started in, and the deadlines between two rows' are the missed ones): the
+overruns in a window where the steal counter rose (sampled every 2 ms), those outside any (the issue's figure
+with the host's steal set aside), and those in whole seconds when the counter did not move at all; the same for
+steps that started late. Per loop thread: page faults, involuntary switches, the time it waited for a CPU. The
+node is stopped
 just before the controller's last step so that neither sees the other's end as a fault; stale
 faults are counted from the controller's recording (running -> safe transitions). The load
 average before and after is printed: other work on the machine shows there.
@@ -33,17 +41,20 @@ average before and after is printed: other work on the machine shows there.
 The default run is issue 11's condition (20 s, one hog per core) with and without the measures, and says
 whether it is met; ``--repeat N`` runs the cases N times, interleaved, with each case's median and worst.
 
-Usage: ``.venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 1] [--repeat 1] [--flood]``.
+Usage: ``.venv/bin/python bench/bench_load.py [--duration 20] [--hogs-per-core 1] [--repeat 1] [--flood]
+[--cases WORDS...] [--keep DIR]``.
 Needs root (or CAP_SYS_NICE) for SCHED_FIFO; without it the FIFO cases run under the normal
 scheduler (the processes say so) and the comparison shows nothing.
 """
 from __future__ import annotations
 
 import argparse
+import bisect
 import csv
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import statistics
@@ -82,6 +93,15 @@ while time.monotonic() - t0 < seconds:
             while time.monotonic() < t0 + k * 1e-4:
                 pass
     k += 1
+"""
+#: ``valvectl`` with all its memory locked (``mlockall(MCL_CURRENT | MCL_FUTURE)``) before anything is imported: no
+#: page of it is ever reclaimed, and every page it maps later is faulted in when mapped, not when first touched.
+MLOCKALL = """
+import ctypes, os, sys
+if ctypes.CDLL(None, use_errno=True).mlockall(3) != 0:
+    raise SystemExit("mlockall: " + os.strerror(ctypes.get_errno()))
+from controller.cli import main
+sys.exit(main(sys.argv[1:]))
 """
 HOGS = {
     "python": "while True: pass",
@@ -140,9 +160,8 @@ def stale_during(rec: str, end_s: float) -> int:
     return n
 
 
-def overrun_times(rec: str, period_s: float) -> list[tuple[float, int]]:
-    """(t_s of the step before the gap, deadlines missed) for every gap of more than 1.5 periods between two
-    recorded steps (a row's t_s is its deadline)."""
+def step_times(rec: str) -> list[float]:
+    """The controller's recorded steps, ``t_s`` (s from its first deadline)."""
     t = []
     with open(rec) as fh:
         next(fh)
@@ -152,13 +171,31 @@ def overrun_times(rec: str, period_s: float) -> list[tuple[float, int]]:
                 t.append(float(head))
             except ValueError:
                 continue
-    return [(a, int(round((b - a) / period_s)) - 1) for a, b in zip(t, t[1:]) if b - a > 1.5 * period_s]
+    return t
+
+
+def missed_deadlines(t: list[float], period_s: float, catch_up: bool) -> tuple[list[float], list[float]]:
+    """(the deadlines that got no step, each its time in the controller's ``t_s``; each step's lateness, s).
+
+    With ``catch_up`` a step starts within its own deadline's period (a later start is counted as missed
+    deadlines, and the step serves the newest), so a row's deadline is ``floor(t_s / period)``, its lateness the
+    rest, and the deadlines between two rows' are exactly the missed ones. Without, a step may start periods
+    late: the missed deadlines are read from the gaps of more than 1.5 periods between rows (``round(gap) - 1``
+    after the earlier row) and the lateness is not known (empty)."""
+    if not catch_up:
+        return [a + i * period_s for a, b in zip(t, t[1:]) if b - a > 1.5 * period_s
+                for i in range(1, int(round((b - a) / period_s)))], []
+    k = [int(x / period_s + 1e-3) for x in t]  # t_s is written to 9 digits: a step on time may read up to 0.05 us early
+    missed = [j * period_s for a, b in zip(k, k[1:]) for j in range(a + 1, b)]
+    return missed, [x - j * period_s for x, j in zip(t, k)]
 
 
 #: /proc/stat counts steal in 1/USER_HZ units (10 ms): a steal shows when its sum crosses a multiple of that,
 #: up to this long after it happened. A window of steal is widened back by it (and by the clock offset's slack).
 STEAL_TICK_S = 0.010
 CLOCK_SLACK_S = 0.003
+#: A step that started this long after its deadline is counted as late (``late steps``).
+LATE_STEP_S = 300e-6
 
 
 def stolen_windows(samples: list[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -168,11 +205,44 @@ def stolen_windows(samples: list[tuple[float, float]]) -> list[tuple[float, floa
             for (m0, s0), (m1, s1) in zip(samples, samples[1:]) if s1 > s0]
 
 
-def attribute_steal(overruns: list[tuple[float, int]], windows: list[tuple[float, float]], offset_s: float,
-                    span: tuple[float, float]) -> tuple[int, float]:
-    """(overruns during a window of host steal, share of the run's time those windows cover, %).
-    ``offset_s``: the controller's t_s plus this is the bench's monotonic clock."""
-    stolen = sum(n for t, n in overruns if any(a <= t + offset_s <= b for a, b in windows))
+def in_windows(times: list[float], width_s: float, windows: list[tuple[float, float]], offset_s: float) -> int:
+    """How many of the intervals ``[t, t + width_s)`` (controller's ``t_s``; plus ``offset_s``: the bench's
+    monotonic clock) overlap a window of host steal."""
+    ws = sorted(windows)
+    starts = [a for a, _ in ws]
+    reach, hi = [], -float("inf")  # the latest end of the windows up to each one (they may overlap)
+    for _, b in ws:
+        hi = max(hi, b)
+        reach.append(hi)
+    n = 0
+    for t in times:
+        lo, up = t + offset_s, t + offset_s + width_s
+        i = bisect.bisect_left(starts, up) - 1  # the last window starting before the interval ends
+        n += i >= 0 and reach[i] > lo
+    return n
+
+
+def quiet_seconds(times: list[float], samples: list[tuple[float, float]], offset_s: float,
+                  bin_s: float = 1.0) -> tuple[int, int]:
+    """(whole bins of ``bin_s`` in which the host's steal counter did not move at all, of the ``times``
+    (controller's ``t_s``) those bins hold). Over a second the counter's unit is small: a bin where it stood
+    still had less than one unit (10 ms) of steal, on both vCPUs together, and an overrun there is hard to lay
+    on the host."""
+    if len(samples) < 2:
+        return 0, 0
+    clock = [m for m, _ in samples]
+    t0, n = clock[0], int((clock[-1] - clock[0]) / bin_s)
+    quiet = []
+    for b in range(n):
+        i = bisect.bisect_right(clock, t0 + b * bin_s) - 1
+        j = bisect.bisect_left(clock, t0 + (b + 1) * bin_s)  # the first sample at or past the bin's end
+        quiet.append(samples[min(j, len(samples) - 1)][1] == samples[i][1])
+    held = sum(1 for t in times if 0 <= (b := int((t + offset_s - t0) / bin_s)) < n and quiet[b])
+    return sum(quiet), held
+
+
+def steal_cover(windows: list[tuple[float, float]], span: tuple[float, float]) -> float:
+    """Share of the run (``span``, the bench's monotonic clock) the windows of host steal span, %."""
     lo, hi = span
     covered, end = 0.0, lo
     for a, b in sorted(windows):
@@ -180,20 +250,30 @@ def attribute_steal(overruns: list[tuple[float, int]], windows: list[tuple[float
         if b > a:
             covered += b - a
             end = b
-    return stolen, 100.0 * covered / max(1e-9, hi - lo)
+    return 100.0 * covered / max(1e-9, hi - lo)
 
 
-def proc_counters(pid: int) -> tuple[int, int, float]:
+def proc_counters(pid: int) -> tuple[int, int, float, int]:
     """(major page faults of process ``pid``, involuntary context switches of its main thread, where the loop
-    runs, and that thread's time runnable but waiting for a CPU, ms: schedstat's run delay); -1s once gone."""
+    runs, that thread's time runnable but waiting for a CPU, ms: schedstat's run delay, and its minor page
+    faults); -1s once gone."""
     try:
         majflt = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[9])
+        minflt = int(open(f"/proc/{pid}/task/{pid}/stat").read().rsplit(")", 1)[1].split()[7])
         status = open(f"/proc/{pid}/task/{pid}/status").read()
         nvcs = int(re.search(r"nonvoluntary_ctxt_switches:\s+(\d+)", status).group(1))
         wait_ms = int(open(f"/proc/{pid}/task/{pid}/schedstat").read().split()[1]) * 1e-6
-        return majflt, nvcs, wait_ms
+        return majflt, nvcs, wait_ms, minflt
     except (OSError, AttributeError, IndexError, ValueError):
-        return -1, -1, -1.0
+        return -1, -1, -1.0, -1
+
+
+def locked_mb(pid: int) -> float | None:
+    """Memory locked by process ``pid`` (``VmLck``), MB; None once gone."""
+    try:
+        return int(re.search(r"VmLck:\s+(\d+) kB", open(f"/proc/{pid}/status").read()).group(1)) / 1024
+    except (OSError, AttributeError):
+        return None
 
 
 def host_steal_ms() -> float:
@@ -257,7 +337,9 @@ def scheduling_task(task_dir: str) -> int:
 
 
 def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=None) -> dict:
-    cfg = config(*sched)
+    cfg = config(*sched[:4])
+    catch_up = sched[3] if len(sched) > 3 else True
+    lock = len(sched) > 4 and sched[4]  # both processes' memory locked (mlockall) from their start
     with open(cfg, "rb") as fh:
         period_s = 1.0 / tomllib.load(fh)["loop"]["rate_hz"]
     ep, node_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
@@ -269,7 +351,7 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
     hog_sched = {scheduling(p.pid) for p in hog_procs}
     if hog_sched - {(os.SCHED_OTHER, 0)}:
         raise SystemExit(f"{name}: hogs not at SCHED_OTHER nice 0: {hog_sched}")
-    vc = [sys.executable, "-m", "controller.cli"]
+    vc = [sys.executable, "-c", MLOCKALL] if lock else [sys.executable, "-m", "controller.cli"]
     node_json = ["--json", nj] if NODE_JSON else []
     at_node = flood is not None and flood[0] == "cmd/duty"
     try:
@@ -288,13 +370,15 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
             now = time.monotonic()
             if steal0 is None and t_rec >= 0:  # the controller's first step
                 steal0 = host_steal_ms()
-                offset_s = now - t_rec  # the row was flushed at most one poll (2 ms) before: CLOCK_SLACK_S
                 counters0 = proc_counters(ctrl.pid), proc_counters(node.pid)
+            if t_rec >= 0:  # the newest row was flushed at most a poll (2 ms) before; the closest poll counts
+                offset_s = now - t_rec if offset_s is None else min(offset_s, now - t_rec)
             if steal0 is not None:
                 samples.append((now, host_steal_ms()))
             time.sleep(0.002)
         steal_ms = host_steal_ms() - steal0 if steal0 is not None else None
         counters1 = proc_counters(ctrl.pid), proc_counters(node.pid)
+        locked = [None if (m := locked_mb(p.pid)) is None else round(m) for p in (ctrl, node)]
         node.send_signal(signal.SIGTERM)
         _, c_err = ctrl.communicate(timeout=120)
         n_out, n_err = node.communicate(timeout=120)
@@ -318,19 +402,28 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
            "rate_hz": s["rate_hz"], "faults": {f["kind"]: f["count"] for f in s["faults"]},
            "bad_commands": n.get("bad_commands"), "stalled": {f["kind"]: f["count"] for f in s["faults"]}.get("stalled", 0),
            "steal_ms": steal_ms, "node_gap_max_ms": n.get("publish_gap_ms", {}).get("max")}
-    gaps = overrun_times(rec, period_s)
+    missed, late = missed_deadlines(step_times(rec), period_s, catch_up)
+    late_steps = [t for t, x in zip(step_times(rec), late) if x > LATE_STEP_S] if late else []
     if samples and offset_s is not None:
-        stolen, covered_pct = attribute_steal(gaps, stolen_windows(samples), offset_s,
-                                              (samples[0][0], samples[-1][0]))
+        windows = stolen_windows(samples)
+        stolen = in_windows(missed, period_s, windows, offset_s)  # a deadline's whole period against the windows
+        late_stolen = in_windows(late_steps, 0.0, windows, offset_s)
+        covered_pct = steal_cover(windows, (samples[0][0], samples[-1][0]))
+        quiet_s, quiet_overruns = quiet_seconds(missed, samples, offset_s)
     else:
-        stolen, covered_pct = 0, 0.0
+        stolen = late_stolen = quiet_s = quiet_overruns = 0
+        covered_pct = 0.0
     total = max(1, s["steps"] + s["overruns"])
-    row.update(stolen_overruns=stolen, steal_cover_pct=covered_pct,
+    row.update(stolen_overruns=stolen, steal_cover_pct=covered_pct, located_overruns=len(missed),
+               quiet_s=quiet_s, quiet_overruns=quiet_overruns,
                adjusted_overrun_pct=100.0 * max(0, s["overruns"] - stolen) / total,
+               late_steps=len(late_steps) if late else None, late_stolen=late_stolen if late else None,
                majflt=[b[0] - a[0] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
                preempted=[b[1] - a[1] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
                run_wait_ms=[round(b[2] - a[2], 1) if counters0 else None
-                            for a, b in zip(counters0 or counters1, counters1)])
+                            for a, b in zip(counters0 or counters1, counters1)],
+               minflt=[b[3] - a[3] if counters0 else None for a, b in zip(counters0 or counters1, counters1)],
+               locked_mb=locked)
     if flood:  # the flooded process: its share of the configured rate and its longest step
         if at_node:
             row["flooded_rate_pct"] = 100.0 * n["steps"] / max(1, n["steps"] + n["overruns"])
@@ -338,7 +431,15 @@ def case(name: str, sched: tuple, hogs: int, duration: float, tmp: str, flood=No
         else:
             row["flooded_rate_pct"] = 100.0 * s["steps"] / max(1, s["steps"] + s["overruns"])
             row["flooded_longest_us"] = s["compute_us"]["max"]
+    row["trace"] = {"steal_samples": samples, "offset_s": offset_s, "period_s": period_s}  # for --keep
     return row
+
+
+def enrichment(r: dict) -> str:
+    """How much likelier an overrun was inside a window of host steal than the windows' share of time makes it."""
+    if not r["overruns"] or not r["steal_cover_pct"]:
+        return ""
+    return f"; {r['stolen_overruns'] / r['overruns'] / (r['steal_cover_pct'] / 100.0):.0f}x their share of the time"
 
 
 NODE_JSON = "--json" in subprocess.run([sys.executable, "-m", "controller.cli", "valve-node", "--help"], cwd=ROOT,
@@ -350,6 +451,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--hogs-per-core", type=int, default=1)
     ap.add_argument("--json", default=None, help="write the table as JSON")
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="keep each case's recording, run summary and steal samples (bench clock s, steal ms) in DIR")
     ap.add_argument("--cases", nargs="*", default=None, metavar="WORDS", help="only the cases whose name contains one")
     ap.add_argument("--flood", action="store_true",
                     help="also flood each key (1 MB payloads, small ones as fast as Python publishes, 10 kHz) "
@@ -367,7 +470,8 @@ def main() -> None:
     cases = [("idle, loop FIFO + io FIFO", io_fifo, 0, None), ("hogs, nothing", none, hogs, None),
              ("hogs, loop FIFO", loop, hogs, None), ("hogs, loop FIFO + io FIFO", io_fifo, hogs, None),
              ("hogs, loop FIFO + io nice", io_nice, hogs, None),
-             ("hogs, loop FIFO + io FIFO, skip late", (*io_fifo, False), hogs, None)]
+             ("hogs, loop FIFO + io FIFO, skip late", (*io_fifo, False), hogs, None),
+             ("hogs, loop FIFO + io FIFO, mlockall", (*io_fifo, True, True), hogs, None)]
     if a.flood:
         cases += [(f"flood {k} on {key}", io_fifo, 0, (key, k))
                   for key in ("ref/flow", "meas/flow", "ctrl/mode", "meas/supply", "cmd/duty")
@@ -381,7 +485,16 @@ def main() -> None:
         for rep in range(1, a.repeat + 1):  # interleaved: each repetition sees every case under similar load
             for name, sched, h, flood in cases:
                 foreign.update(foreign_realtime())
-                rows.append(case(re.sub(r"\W+", "_", f"{name} {rep}"), sched, h, a.duration, tmp, flood))
+                tag = re.sub(r"\W+", "_", f"{name} {rep}")
+                rows.append(case(tag, sched, h, a.duration, tmp, flood))
+                trace = rows[-1].pop("trace")
+                if a.keep:
+                    os.makedirs(a.keep, exist_ok=True)
+                    for x in ("csv", "s.json", "n.json"):
+                        if os.path.exists(src := os.path.join(tmp, f"{tag}.{x}")):
+                            shutil.copy(src, os.path.join(a.keep, f"{tag}.{x}"))
+                    with open(os.path.join(a.keep, f"{tag}.steal.json"), "w") as fh:
+                        json.dump(trace, fh)
                 rows[-1].update(case=name, rep=rep)
                 print(f"{name} ({rep}/{a.repeat}): done", file=sys.stderr)
     load_after = os.getloadavg()
@@ -398,21 +511,31 @@ def main() -> None:
           "loop misses its deadlines then, whatever its priority; 0 on bare metal)")
     print(f"stolen: overruns that fell in a window where the host's steal counter rose (/proc/stat counts steal in "
           f"{STEAL_TICK_S * 1e3:.0f} ms units, so each window reaches back that far); steal cover: the share of the "
-          f"run those windows span (the adjustment means little when it is large); adjusted: overruns minus stolen. "
-          f"The raw figure is the one the issue counts")
-    print("major faults: page faults that read from disk, controller/node; preempted: involuntary context switches "
+          f"run those windows span (the adjustment means little when it is large); adjusted: overruns minus stolen "
+          f"(the overruns outside host-steal windows). The raw figure is the one the issue counts. The counter is "
+          f"cumulative: steal shorter than its unit shows only when the sum crosses one, so a window marks where "
+          f"steal was booked, not every freeze (stolen is a lower bound of the overruns the host caused)")
+    print("steal-free s: whole seconds of the run in which the host's steal counter did not move (under 10 ms of "
+          "steal on both vCPUs together); overruns in them: the overruns those seconds hold (hard to lay on the host)")
+    print(f"late steps: controller steps that started more than {LATE_STEP_S * 1e6:.0f} us after their deadline "
+          f"(with catch_up, read from the recording: a step's deadline is the period it started in); late in steal: "
+          f"those in a window of host steal")
+    print("major faults: page faults that read from disk, controller/node; minor faults: the loop thread's page "
+          "faults served from memory, controller/node; locked MB: memory locked (VmLck), controller/node; preempted: involuntary context switches "
           "of the loop's thread, controller/node (a SCHED_FIFO thread is preempted only by higher real-time "
           "priorities, the kernel's own work, or a wait it did not choose); run wait: the loop thread's time runnable "
           "but waiting for a CPU, controller/node (behind a real-time thread of equal or higher priority, ours or "
           "another process's, or the kernel)")
-    hdr = ("case", "rep", "rate Hz", "steps", "overruns", "overrun %", "stale", "stalled", "node steps", "fresh cmd %",
-           "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us", "node gap max ms", "host steal ms",
-           "stolen", "steal cover %", "adjusted overrun %", "major faults", "preempted",
-           "run wait ms")
-    keys = ("case", "rep", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "stalled", "node_steps",
+    hdr = ("case", "rep", "rate Hz", "steps", "overruns", "overrun %", "stale", "stalled", "node steps", "node overruns",
+           "fresh cmd %", "cmd timeouts", "rt p50 us", "rt p99 us", "longest step us", "lateness max us",
+           "node gap max ms", "host steal ms", "stolen", "steal cover %", "adjusted overrun %", "steal-free s",
+           "overruns in them", "late steps", "late in steal", "major faults", "minor faults", "preempted",
+           "run wait ms", "locked MB")
+    keys = ("case", "rep", "rate_hz", "steps", "overruns", "overrun_pct", "stale", "stalled", "node_steps", "node_overruns",
             "fresh_cmd_pct", "cmd_timeouts", "rt_p50_us", "rt_p99_us", "compute_max_us", "lateness_max_us",
-            "node_gap_max_ms", "steal_ms", "stolen_overruns", "steal_cover_pct", "adjusted_overrun_pct", "majflt",
-            "preempted", "run_wait_ms")
+            "node_gap_max_ms", "steal_ms", "stolen_overruns", "steal_cover_pct", "adjusted_overrun_pct", "quiet_s",
+            "quiet_overruns", "late_steps", "late_stolen", "majflt", "minflt", "preempted", "run_wait_ms", "locked_mb")
+    assert len(hdr) == len(keys)
     print(" | ".join(hdr))
     for r in rows:
         cells = []
@@ -438,7 +561,8 @@ def main() -> None:
     names = list(dict.fromkeys(r["case"] for r in rows))
     if a.repeat > 1:
         print(f"over {a.repeat} repetitions | overrun % median | overrun % worst | stale total | cmd timeouts total "
-              f"| host steal ms median | adjusted overrun % median | adjusted overrun % worst")
+              f"| host steal ms median | adjusted overrun % median | adjusted overrun % worst | overruns in steal-free "
+              f"seconds / those seconds, total")
         for name in names:
             rs = [r for r in rows if r["case"] == name]
             pct = sorted(r["overrun_pct"] for r in rs)
@@ -447,7 +571,7 @@ def main() -> None:
             print(f"{name} | {statistics.median(pct):.3f} | {pct[-1]:.3f} | {sum(r['stale'] for r in rs)} | "
                   f"{sum(r['cmd_timeouts'] or 0 for r in rs)} | "
                   f"{statistics.median(steal) if steal else float('nan'):.0f} | {statistics.median(adj):.3f} | "
-                  f"{adj[-1]:.3f}")
+                  f"{adj[-1]:.3f} | {sum(r['quiet_overruns'] for r in rs)} / {sum(r['quiet_s'] for r in rs)}")
     for rep in range(1, a.repeat + 1):
         of = {r["case"]: r for r in rows if r["rep"] == rep}
         idle, shipped, base = (of.get(k) for k in ("idle, loop FIFO + io FIFO", "hogs, loop FIFO + io FIFO",
@@ -466,6 +590,13 @@ def main() -> None:
                   f"{shipped['overruns']} / {skip['overruns']} ({shipped['overrun_pct']:.3f} % / {skip['overrun_pct']:.3f} %), "
                   f"lateness max {shipped['lateness_max_us']:.0f} / {skip['lateness_max_us']:.0f} us, stale "
                   f"{shipped['stale']} / {skip['stale']}, command timeouts {shipped['cmd_timeouts']} / {skip['cmd_timeouts']}")
+        locked = of.get("hogs, loop FIFO + io FIFO, mlockall")
+        if shipped is not None and locked is not None:
+            print(f"[{rep}] hogs, shipped against the same with all memory locked: overruns {shipped['overruns']} / "
+                  f"{locked['overruns']} ({shipped['overrun_pct']:.3f} % / {locked['overrun_pct']:.3f} %), outside "
+                  f"host-steal windows {shipped['adjusted_overrun_pct']:.3f} % / {locked['adjusted_overrun_pct']:.3f} %, "
+                  f"loop threads' minor faults {shipped['minflt']} / {locked['minflt']}, host steal "
+                  f"{shipped['steal_ms'] or 0:.0f} / {locked['steal_ms'] or 0:.0f} ms")
         if shipped is not None:  # issue 11's condition, with the shipped measures
             met = shipped["stale"] == 0 and shipped["cmd_timeouts"] == 0 and shipped["overrun_pct"] <= 0.1
             span = f"{a.duration:g} s" + ("" if a.duration == 20 else ", not the issue's 20 s")
@@ -475,8 +606,9 @@ def main() -> None:
                   f"{shipped['overrun_pct']:.3f} % (<= 0.1 %): {'met' if met else 'NOT met'} (raw); host steal "
                   f"{shipped['steal_ms'] if shipped['steal_ms'] is not None else float('nan'):.0f} ms, "
                   f"{shipped['stolen_overruns']} of {shipped['overruns']} overruns in its windows "
-                  f"({shipped['steal_cover_pct']:.1f} % of the run): adjusted {shipped['adjusted_overrun_pct']:.3f} %: "
-                  f"{'met' if met_adj else 'NOT met'} with the host's steal set aside")
+                  f"({shipped['steal_cover_pct']:.1f} % of the run{enrichment(shipped)}): overruns outside host-steal "
+                  f"windows {shipped['adjusted_overrun_pct']:.3f} %: {'met' if met_adj else 'NOT met'} with the host's "
+                  f"steal set aside")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)
