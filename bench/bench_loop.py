@@ -19,7 +19,14 @@ Prints, for the live loop of ``valvectl run`` (ff+kf, config/run.toml):
    (its summary) and the round trip ``meas/flow`` out -> the ``cmd/duty``
    computed from it back (``meas_seq``), as a ratio to the bare Zenoh
    round trip of an echo process (the baseline), for both triggers, with
-   the Done-when ratio (trigger measurement p50 <= 1.5x the echo's).
+   the Done-when ratio (trigger measurement p50 <= 1.5x the echo's); and,
+   interleaved with them, the fixed-rate controller of an older commit
+   (``--baseline``, :data:`BASELINE_COMMIT`, run from a git worktree of it
+   with its own config and numba cache), its compute, lateness and
+   overruns against this tree's trigger period (Done-when: the fixed-rate
+   mode's figures do not get worse).
+
+    .venv/bin/python bench/bench_loop.py [--parts schedulers,compute,zenoh] [--rounds 3] [--baseline COMMIT]
 
 The machine is shared (2 cores, other jobs running): figures vary from run to run. Each case prints the
 load average at its start and the hypervisor's steal during it (``/proc/stat``, :func:`bench_load.host_steal_ms`).
@@ -153,11 +160,36 @@ with zenoh.open(c) as z:
 """
 
 
-def zenoh_round_trip(cfg, echo: bool = False, trigger: str = "period") -> tuple[dict | None, np.ndarray]:
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def baseline_tree(commit: str) -> str:
+    """A git worktree of ``commit`` in the temporary folder (made once), its kernels compiled into its own numba
+    cache (``controller.precompile``, under SCHED_IDLE) before any timed run."""
+    path = os.path.join(tempfile.gettempdir(), f"valvectl-loop-{commit}")
+    if not os.path.exists(os.path.join(path, "controller")):
+        subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", path, commit], check=True,
+                       capture_output=True)
+    stamp = os.path.join(path, ".precompiled")
+    if not os.path.exists(stamp):
+        print(f"(compiling {commit}'s kernels in {path}, once)", flush=True)
+        subprocess.run(["chrt", "-i", "0", "nice", "-n", "19", sys.executable, "-m", "controller.precompile"],
+                       cwd=path, env=tree_env(path), check=True, stdout=subprocess.DEVNULL)
+        open(stamp, "w").close()
+    return path
+
+
+def tree_env(tree: str) -> dict:
+    """The environment that runs ``tree``'s code with this interpreter (its packages before the installed ones)."""
+    return {**os.environ, "PYTHONPATH": tree}
+
+
+def zenoh_round_trip(cfg, echo: bool = False, trigger: str = "period", tree: str | None = None
+                     ) -> tuple[dict | None, np.ndarray]:
     """The valve's view: meas/flow out at 1 kHz, the cmd/duty computed from it back.
 
-    Against the controller (``valvectl run --plant zenoh --trigger TRIGGER``), or with ``echo``
-    against :data:`ECHO`.
+    Against the controller (``valvectl run --plant zenoh --trigger TRIGGER``; ``tree``: another
+    checkout's, run from there with its own config), or with ``echo`` against :data:`ECHO`.
     """
     import zenoh
 
@@ -169,7 +201,8 @@ def zenoh_round_trip(cfg, echo: bool = False, trigger: str = "period") -> tuple[
         ctrl = subprocess.Popen([sys.executable, "-c", ECHO, ep, str(cfg["zenoh"]["io_priority"])])
     else:
         ctrl = subprocess.Popen([sys.executable, "-m", "controller.cli", "run", "--plant", "zenoh", "--listen", ep,
-                                 "--duration", "0", "--trigger", trigger, "--json", out], stdout=subprocess.DEVNULL)
+                                 "--duration", "0", "--trigger", trigger, "--json", out], stdout=subprocess.DEVNULL,
+                                cwd=tree or ROOT, env=tree_env(tree or ROOT))
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("scouting/multicast/enabled", "false")
@@ -206,12 +239,13 @@ def zenoh_round_trip(cfg, echo: bool = False, trigger: str = "period") -> tuple[
         return json.load(fh), np.array(rtt)
 
 
-def main() -> None:
-    cfg = load_run_config("config/run.toml")
-    model = load_model(cfg.resolve(cfg[""]["model"]))
+#: The Zenoh part's fixed-rate baseline (``--baseline``): the controller of this commit, run from its own checkout,
+#: interleaved with this tree's (Done-when: "the fixed-rate mode's figures do not get worse").
+BASELINE_COMMIT = "725a272"
+
+
+def in_process_schedulers(cfg, model) -> None:
     spin, rt = cfg.loop.spin_s, cfg.loop.rt_priority
-    print(f"loop at {cfg.loop.rate_hz:g} Hz, ff+kf, {SECONDS:g} s per case; shared 2-core machine, "
-          f"load average {os.getloadavg()[0]:.1f}\n")
     print("in-process simulated valve               lateness us                          compute us")
     base = None
     for name, s_, r_ in (("sleep to deadline (baseline)", 0.0, 0), (f"hybrid, spin {spin*1e6:.0f} us", spin, 0),
@@ -220,8 +254,11 @@ def main() -> None:
         base = base or s["lateness_us"]["p99"]
         print(f"  {name:34s} {pct(s['lateness_us'])}   {pct(s['compute_us'])}   overruns {s['overruns']}, "
               f"p99 lateness {s['lateness_us']['p99'] / base:.3g}x baseline   ({cond})")
+
+
+def in_process_compute(cfg, model, rounds: int) -> None:
+    spin, rt = cfg.loop.spin_s, cfg.loop.rt_priority
     print("\nthe step's own work (compute us), make run's scheduling, rounds interleaved; baseline: the previous step")
-    rounds = 3
     runs = {"previous: pure step, fresh arrays": {"previous": True},
             "now, no rehearsal": {"rehearse": False},
             "now, rehearsed (make run)": {}}
@@ -231,7 +268,7 @@ def main() -> None:
             s, cond = conditions(lambda: in_process(cfg, model, spin, rt, **kw))
             got[name].append(s)
             print(f"    round {k + 1} {name:34s} compute p50 {s['compute_us']['p50']:6.1f} p99 "
-                  f"{s['compute_us']['p99']:6.1f}   ({cond})")
+                  f"{s['compute_us']['p99']:6.1f}   lateness p99 {s['lateness_us']['p99']:6.1f}   ({cond})")
     base = {q: np.median([s["compute_us"][q] for s in got["previous: pure step, fresh arrays"]]) for q in ("p50", "p99")}
     for name, ss in got.items():
         q = {k: np.median([s["compute_us"][k] for s in ss]) for k in ("p50", "p99")}
@@ -246,17 +283,25 @@ def main() -> None:
     p50, p99 = (np.median([s["compute_us"][k] for s in now]) for k in ("p50", "p99"))
     print(f"  Done when (ff+kf, simulated valve): compute p50 <= 30 us: {p50:.1f} ({'met' if p50 <= 30 else 'NOT met'}), "
           f"p99 <= 60 us: {p99:.1f} ({'met' if p99 <= 60 else 'NOT met'})")
+
+
+def over_zenoh(cfg, rounds: int, baseline: str | None) -> None:
     print("\nover Zenoh (controller process, this process as the valve), rounds interleaved")
-    rounds = 3
-    rtt = {"bare Zenoh echo (baseline)": [], "loop, trigger period": [], "loop, trigger measurement": []}
+    old = f"{baseline}, trigger period" if baseline else None
+    tree = baseline_tree(baseline) if baseline else None
+    names = ["bare Zenoh echo (baseline)", "loop, trigger period", *([old] if old else []), "loop, trigger measurement"]
+    rtt = {name: [] for name in names}
+    ctrl = {name: [] for name in names[1:]}
     for k in range(rounds):
         for name in rtt:
             if name.startswith("bare"):
                 (s, x), cond = conditions(lambda: zenoh_round_trip(cfg, echo=True))
             else:
                 trigger = name.rsplit(" ", 1)[1]
-                (s, x), cond = conditions(lambda: zenoh_round_trip(cfg, trigger=trigger))
-                print(f"  trigger {trigger:11s} controller lateness us {pct(s['lateness_us'])}   compute us "
+                (s, x), cond = conditions(lambda: zenoh_round_trip(cfg, trigger=trigger,
+                                                                   tree=tree if name == old else None))
+                ctrl[name].append(s)
+                print(f"  {name:28s} controller lateness us {pct(s['lateness_us'])}   compute us "
                       f"{pct(s['compute_us'])}   overruns {s['overruns']} of {s['steps'] + s['overruns']}")
             rtt[name].append(np.percentile(x, [50, 99]) * 1e6)
             print(f"    round {k + 1} {name:28s} round trip p50 {rtt[name][-1][0]:6.0f} us   ({cond})")
@@ -270,11 +315,45 @@ def main() -> None:
     m = ratio["loop, trigger measurement"]
     print(f"  Done when: trigger measurement round trip p50 <= 1.5x the bare echo's: {m:.2f}x "
           f"({'met' if m <= 1.5 else 'NOT met'}); trigger period {ratio['loop, trigger period']:.2f}x")
+    if old:
+        med = {name: {f"{k} {q}": np.median([s[f"{k}_us"][q] for s in ss]) for k in ("compute", "lateness")
+                      for q in ("p50", "p99")} | {"overruns": np.median([s["overruns"] for s in ss])}
+               for name, ss in ctrl.items()}
+        new_, old_ = med["loop, trigger period"], med[old]
+        print(f"  Done when: the fixed-rate mode's figures do not get worse, this tree / {baseline} (medians over "
+              f"{rounds} rounds): " + ", ".join(f"{k} {new_[k]:.1f} / {old_[k]:.1f} us ({new_[k] / old_[k]:.2f}x)"
+                                               for k in new_ if k != "overruns")
+              + f", overruns {new_['overruns']:g} / {old_['overruns']:g}, round trip p50 "
+              f"{ratio['loop, trigger period'] / ratio[old]:.2f}x")
     print("  (trigger period reads its inputs once per period: the echo's round trip plus up to one period plus "
           "the step's compute; trigger measurement steps in the measurement's own Zenoh callback)")
     print("  (trigger period's round trip depends on the phase between this valve's clock and the loop's, set by "
           "when each process started: it ranges over a period from run to run; compare the controller's compute "
           "and lateness between runs, not that round trip)")
+
+
+def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    ap.add_argument("--parts", default="schedulers,compute,zenoh",
+                    help="comma-separated: schedulers (1a-c), compute (the step's own work), zenoh (2.)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the compute and Zenoh parts")
+    ap.add_argument("--baseline", default=BASELINE_COMMIT,
+                    help="commit whose fixed-rate controller runs beside this tree's over Zenoh ('' for none)")
+    args = ap.parse_args()
+    parts = set(args.parts.split(","))
+    os.chdir(ROOT)
+    cfg = load_run_config("config/run.toml")
+    model = load_model(cfg.resolve(cfg[""]["model"]))
+    print(f"loop at {cfg.loop.rate_hz:g} Hz, ff+kf, {SECONDS:g} s per case; shared 2-core machine, "
+          f"load average {os.getloadavg()[0]:.1f}\n")
+    if "schedulers" in parts:
+        in_process_schedulers(cfg, model)
+    if "compute" in parts:
+        in_process_compute(cfg, model, args.rounds)
+    if "zenoh" in parts:
+        over_zenoh(cfg, args.rounds, args.baseline or None)
 
 
 if __name__ == "__main__":

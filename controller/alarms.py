@@ -147,8 +147,18 @@ class Alarms:
         held = a[_HELD:].reshape(len(KINDS), _N_HELD)
         held[:, _ACTIVE] = held[:, _COUNT] = 0.0
         self._held = held
+        self._scratch = a.copy()  # rehearse()'s buffer
         # the kernel's machine code without numba's dispatcher (models.direct), its buffer by address
-        self.step = functools.partial(direct(_step, a.ctypes.data, 0.0, True, 0.0, 0.0, 0.0, 0.0), a.ctypes.data)
+        entry = direct(_step, a.ctypes.data, 0.0, True, 0.0, 0.0, 0.0, 0.0)
+        self.step = functools.partial(entry, a.ctypes.data)
+        self._rehearse_step = functools.partial(entry, self._scratch.ctypes.data)
+
+    def rehearse(self, t_s: float, running: bool, duty_pct: float, error_lpm: float, mismatch_lpm: float,
+                 supply_bar: float) -> None:
+        """A step on a scratch copy of the buffer: the kernel's machine code and the buffer pass through
+        the caches, and the alarms are untouched (the loop's rehearsal before a step is due)."""
+        np.copyto(self._scratch, self._buf)
+        self._rehearse_step(t_s, running, duty_pct, error_lpm, mismatch_lpm, supply_bar)
 
     def active(self) -> list[str]:
         """The alarms raised now."""

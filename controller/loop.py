@@ -19,7 +19,7 @@ hand-off (an event's wake-up and the GIL's, 50-150 µs) lies between the
 measurement and its command. The loop's thread only sleeps, as the watchdog:
 when no measurement came for :data:`WATCHDOG_PERIODS` periods it steps itself
 (stale check, safe state, status); a lock keeps the two from stepping at
-once; it also rehearses the law just before the next measurement is due
+once; it also rehearses the step just before the next measurement is due
 (``rehearse``). Then lateness is step start - arrival (the lock's wait; start -
 watchdog deadline on a watchdog step) and an overrun is a measurement that
 got no step of its own: a step that started after it came took it along,
@@ -131,11 +131,11 @@ class LoopSettings:
     rehearse : bool
         On the real clock: rehearse the step's compiled calls on scratch
         copies just before the step is due, so that the step itself runs on
-        warm caches (:meth:`Loop.run`). ``trigger = "period"``: the law, the
-        valve and the reference, :data:`REHEARSAL_S` before each deadline;
-        ``"measurement"``: the law, on the watchdog's thread,
-        :data:`MEASUREMENT_REHEARSAL_S` before the next measurement is due
-        (the last one's arrival plus a period).
+        warm caches (:meth:`Loop.run`): the law, the valve, the alarms, the
+        reference and the record's next row. ``trigger = "period"``:
+        :data:`REHEARSAL_S` before each deadline; ``"measurement"``: on the
+        watchdog's thread, :data:`MEASUREMENT_REHEARSAL_S` before the next
+        measurement is due (the last one's arrival plus a period).
     alarms : AlarmSettings
         Thresholds and hold times of the online alarms.
     fallback : SupervisorSettings
@@ -625,6 +625,30 @@ class Loop:
                 faults.add("stalled", t)
             steps += 1
 
+        transport_rehearse = getattr(transport, "rehearse", None)
+        reference_rehearse = getattr(reference, "rehearse", None)
+        alarm_rehearse, nan = alarms.rehearse, math.nan
+
+        def rehearse(t: float) -> None:
+            """The next step's compiled calls, reference and record row, for nothing, just before it is due at
+            run time ``t`` (:attr:`LoopSettings.rehearse`): the law's last step, the valve's next one and the
+            alarms' on scratch copies, the reference at ``t`` (and ahead), and the record's next row written
+            ahead with the present values (past ``cols.n`` it is not part of the record; the step writes it
+            again). A step after ~1 ms of sleep finds its code and data evicted (other processes, the
+            hypervisor) and ran 2-3x slower than back to back; rehearsed, the step itself (all of its work,
+            timed as ever) runs on warm caches."""
+            sup.rehearse(period)
+            if transport_rehearse is not None:
+                transport_rehearse()
+            if reference_rehearse is not None:
+                reference_rehearse(t)
+            alarm_rehearse(t, state == RUNNING, duty, ref_in - meas, sup.mismatch_lpm, nan)
+            i = cols.n
+            if i == cols.capacity:  # a run of no set length: grown here rather than in the step
+                cols.grow()
+            pack_head(cols.buf, i * row_bytes, t, ref_in, meas, duty, ff, fb, 0.0, 0.0, 0.0, state,
+                      word_index[sup.word])
+
         # Warm-up: each law computes one throw-away step before the first deadline, so loading its
         # compiled kernels (numba's cache: tens to hundreds of ms on a busy host) never stalls a live
         # step, nor the valve, whose own command timeout would close it meanwhile.
@@ -682,12 +706,12 @@ class Loop:
                 try:
                     while True:
                         if rehearse_law and rehearsed < last_arrival and last_arrival + period - lead < last_wake + watch:
-                            # the law's step rehearsed (Loop.run's rehearsal) just before the next measurement is due
+                            # the step rehearsed (rehearse()) just before the next measurement is due
                             expected = last_arrival
                             clock.sleep_until(expected + period - lead)
                             with lock:
                                 if last_arrival == expected:  # no measurement came meanwhile
-                                    sup.rehearse(period)
+                                    rehearse(expected + period - t0)
                                 rehearsed = expected
                             continue
                         clock.sleep_until(last_wake + watch)  # sleeps, never spins: the arrivals need the GIL
@@ -709,21 +733,11 @@ class Loop:
                                 with contextlib.suppress(OSError):  # a thread that ended meanwhile
                                     os.sched_setscheduler(tid, *old)
             else:
-                rehearse = None
+                rehearse_next = None
                 if cfg.rehearse and real_time:
-                    transport_rehearse = getattr(transport, "rehearse", None)
-                    reference_rehearse = getattr(reference, "rehearse", None)
 
-                    def rehearse() -> None:
-                        # The next step's compiled calls and reference, on scratch copies, in the spin before
-                        # its deadline: a step after ~1 ms of sleep finds its code and data evicted (other
-                        # processes, the hypervisor) and ran 2-3x slower than back to back; rehearsed, the
-                        # step itself (all of its work, timed as ever) runs on warm caches.
-                        sup.rehearse(period)
-                        if transport_rehearse is not None:
-                            transport_rehearse()
-                        if reference_rehearse is not None:
-                            reference_rehearse(deadline - t0)
+                    def rehearse_next() -> None:  # in the spin before the deadline (RealClock.wait_until)
+                        rehearse(deadline - t0)
 
                 catch_up = cfg.catch_up
                 deadline = t0
@@ -739,7 +753,7 @@ class Loop:
                     return n_steps is not None and steps >= n_steps
 
                 while True:
-                    now = clock.wait_until(deadline, rehearse)
+                    now = clock.wait_until(deadline, rehearse_next)
                     # woken (a frozen host) after whole periods: missed, the step serves the newest deadline
                     if catch_up and now - deadline >= period and skip(deadlines_missed(now - deadline, period, True)):
                         break

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from controller.alarms import AlarmSettings, Alarms
 from controller.config import controller_params, load_run_config
 from controller.loop import RECORD_COLUMNS, Loop, LoopSettings, ProfileReference, RealClock, SimClock
 from controller.run_summary import steady_mask, summary, tracking
@@ -446,26 +447,75 @@ def test_measurement_trigger_steps_on_the_transports_thread_and_never_twice_at_o
 
 
 def test_rehearsals_change_nothing(cfg, model):
-    """The loop's rehearsal before each deadline (a law's and the valve's step on scratch copies) leaves
-    the law and the valve exactly where they were: steps interleaved with rehearsals are bit-identical."""
+    """The loop's rehearsal before each deadline (a law's, the valve's and the alarms' step on scratch copies)
+    leaves the law, the valve and the alarms exactly where they were: steps interleaved with rehearsals are
+    bit-identical."""
     from controller.laws import control
 
     p = controller_params(cfg, "ff+kf", model)
     rng = np.random.default_rng(5)
     ref, meas = rng.uniform(0, 80, 200), rng.uniform(0, 80, 200)
-    runs = []
+    runs, alarm_lists = [], []
     for rehearse in (False, True):
         law, valve = control.Live(p), sim_plant(cfg, seed=1).running(sim_plant(cfg).init(0.0))
+        alarms = Alarms(AlarmSettings(), 0.0, 100.0)
         law.load(control.init(p, 0.0))
         out = []
         for k in range(len(ref)):
             if rehearse:
                 law.rehearse(1e-3)
                 valve.rehearse(float(k % 70))
+                alarms.rehearse(k * 1e-3 + 5e-4, k % 3 > 0, float(k % 100), -meas[k], meas[k] / 2, 1.0)  # any inputs
             duty = law.step(ref[k], meas[k], ref[k], 1e-3)
+            alarms.step(k * 1e-3, True, duty[0], ref[k] - meas[k], meas[k] / 4, 3.0 - k / 50)
             out.append((*duty[:4], valve.step(duty[0]).flow_lpm))
         runs.append(np.array(out))
+        alarm_lists.append(alarms.to_list())
     np.testing.assert_array_equal(runs[0], runs[1])
+    assert alarm_lists[0] == alarm_lists[1] and alarm_lists[0]  # raised, the same, rehearsed or not
+
+
+class RehearsingClock(RealClock):
+    """Simulated time that rehearses before each deadline as the real clock does (a real clock to the loop,
+    which rehearses only on one)."""
+
+    def __init__(self):
+        super().__init__(0.0)
+        self.t, self.rehearsals = 0.0, 0
+
+    def now(self):
+        return self.t
+
+    def wait_until(self, deadline, rehearse=None):
+        if rehearse is not None and self.t < deadline:
+            rehearse()
+            self.rehearsals += 1
+        self.t = max(self.t, deadline)
+        return self.t
+
+    sleep_until = wait_until
+
+
+def test_a_rehearsed_run_records_exactly_what_an_unrehearsed_one_does(cfg, model):
+    """The loop's whole rehearsal before each deadline (the law's, the valve's and the alarms' steps on scratch
+    copies, the reference, the record's next row written ahead) changes nothing: the records, the faults and the
+    alarms (raised by a supply drop) of runs with and without it are identical."""
+    import dataclasses
+
+    res = []
+    for rehearse in (False, True):
+        clock = RehearsingClock()
+        valve = SimTransport(sim_plant(cfg), 0.0, [(0.6, "supply_bar", 0.3)])
+        res.append(run(cfg, model, transport=valve, duration=1.0, clock=clock,
+                       settings=dataclasses.replace(SETTINGS, rehearse=rehearse)))
+        assert clock.rehearsals == (999 if rehearse else 0)  # every deadline but the first (the start itself)
+    (a, b) = res
+    assert {al["kind"] for al in b.alarms.to_list()} >= {"supply_low"}
+    assert a.alarms.to_list() == b.alarms.to_list() and a.faults.to_list() == b.faults.to_list()
+    assert a.columns.keys() == b.columns.keys()
+    for k in a.columns:
+        if k != "compute_s":
+            np.testing.assert_array_equal(a.columns[k], b.columns[k], err_msg=k)
 
 
 def test_real_clock_rehearses_before_the_deadline_only():
