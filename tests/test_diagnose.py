@@ -286,3 +286,16 @@ def test_magnitude_by_excitation_matrix():
     assert free_findings == [] and worse == []
     for size, h in hits.items():
         assert np.mean(h) >= 0.95, (size, np.mean(h))
+
+
+@pytest.mark.slow
+def test_gross_saturation_with_heating_names_no_dead_zone():
+    # a clip at 130 L/min hides a coil 30 K warm from the first round (the PI bends through the clipped
+    # rows): the heating, refused then, is tried again once the saturation is named, and the residual
+    # is not handed to a dead zone that was never there
+    G = pytest.importorskip("diagnose_gross")
+    p = G.Probe("plant", (("saturation", 130.0), ("coil_heating", 30.0)), "paper", 7, 0.5)
+    d = diagnose_response(G.record(p))
+    assert {f.effect for f in d.findings if f.alternative_to is None} == {"saturation", "coil_heating"}
+    for f in d.findings:
+        assert f.holdout_rmse_after < f.holdout_rmse_before
