@@ -20,8 +20,12 @@ def test_sweep_rows_equal_the_numpy_laws_rows_to_1e_9():
     figures = set(runner.figure_columns(r))
     for c in r.columns:
         for i, (got, want) in enumerate(zip(r.table[c], ref["table"][c], strict=True)):
-            if c not in figures:
-                assert got == want or (got is None and want is None) or float(got) == want, (c, i)
+            if c not in figures and not isinstance(want, float):
+                assert got == want, (c, i)
+            elif c not in figures:
+                # A candidate's gains come from numpy's grid functions, whose last bit moves between releases
+                # (numpy 2.4.6: one ulp on a geomspace point): inputs equal to 1e-12, not bit for bit.
+                assert float(got) == pytest.approx(want, rel=1e-12), (c, i)
             elif want is None:
                 assert got is None or math.isnan(got), (c, i)
             else:
