@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from scipy.signal import lfilter
 
 from .. import play
 
@@ -56,13 +55,51 @@ def first_order_lag(x: np.ndarray, rate_hz: float, tau_s: float, x0=None, phase:
     if tau_s <= 0:
         return x.copy()
     a = np.exp(-1.0 / (rate_hz * tau_s))
-    y0 = np.asarray(x[0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=np.float64), x.shape[1:]))
-    # y[k] = a y[k-1] + (1 - a) u[k], u = (1 - phase) x[k] + phase x[k-1] (x[-1] = y0: at rest), from y0
-    prev = np.concatenate([np.broadcast_to(y0, (1,) + x.shape[1:]), x[:-1]], axis=0)
-    u = (1.0 - phase) * x + phase * prev if phase != 1.0 else prev
-    zi = (a * y0)[None, ...] if x.ndim > 1 else np.atleast_1d(a * y0)
-    y, _ = lfilter([1.0 - a], [1.0, -a], u, axis=0, zi=zi)
-    return y
+    y0 = x[0] if x0 is None else np.broadcast_to(np.asarray(x0, dtype=np.float64), x.shape[1:])
+    # every column through one compiled pass over the rows: lfilter along axis 0 of a tall,
+    # narrow array walked it column by column with a strided copy each, and the shifted input
+    # and the update were two more arrays of its size (the lag's screen and every PI refit
+    # under a lag run this on N x 51 operator outputs)
+    cols = np.ascontiguousarray(x.reshape(len(x), -1))
+    y = _lag(cols, np.ascontiguousarray(np.reshape(y0, -1), dtype=np.float64), float(a), float(phase))
+    return y.reshape(x.shape)
+
+
+@njit(cache=True)
+def _lag(x, y0, a, phase):
+    """:func:`first_order_lag`'s recursion down each column, compiled.
+
+    ``y[k] = a y[k-1] + (1 - a) u[k]`` with ``u[k] = (1 - phase) x[k] + phase x[k-1]`` and
+    ``x[-1] = y[-1] = y0``; each step's operations in the order
+    ``lfilter([1 - a], [1, -a], u, zi=a y0)`` takes them, so the two agree bit for bit.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, p), C-contiguous
+        Input, any unit.
+    y0 : ndarray, shape (p,)
+        Initial output and previous input (the input's unit).
+    a : float
+        ``exp(-1 / (rate tau))``, the pole (dimensionless).
+    phase : float
+        Share of the previous sample's input in each update, 0..1.
+
+    Returns
+    -------
+    ndarray, shape (N, p)
+        Output, the input's unit.
+    """
+    out = np.empty_like(x)
+    b = 1.0 - a
+    y = y0.copy()
+    prev = y0.copy()
+    for k in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            u = prev[j] if phase == 1.0 else (1.0 - phase) * x[k, j] + phase * prev[j]
+            y[j] = a * y[j] + b * u
+            out[k, j] = y[j]
+            prev[j] = x[k, j]
+    return out
 
 
 def delayed(x: np.ndarray, rate_hz: float, delay_s: float) -> np.ndarray:
