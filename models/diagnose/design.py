@@ -311,8 +311,13 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         for col in VOCABULARY[w].valve_columns(at_valve, p):
             cols.append(col)
             names.append(w)
-    X = np.column_stack(cols) if cols else np.zeros((n, 0))
-    F, X, ref = (at_sensor(v, sig, chain) for v in (F, X, ref))
+    X = at_sensor(np.column_stack(cols) if cols else np.zeros((n, 0)), sig, chain)
+    # one pass through the dynamics each: with a refitted baseline the reference is the gain column
+    # and the fixed part stays zero (zero flow through a dead zone, delay and lag); a fixed baseline's
+    # prediction is both the fixed part and the reference
+    ref = X[:, 0] if base.refit else at_sensor(ref, sig, chain)
+    if not base.refit:
+        F = ref
     at_sens = Columns(sig, at_valve.flow_lpm, lift, slope, ref)
     extra = []
     for w, p in chain.items():
@@ -398,31 +403,57 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(A + lam * np.eye(p), b, rcond=1e-12)[0]
 
 
-def _gram(U: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """``U^T V`` for tall, narrow blocks without BLAS threads (which spin against other processes
-    on a shared machine at these sizes)."""
-    return np.einsum("np,nq->pq", U, V)
+def _grams(X: np.ndarray, r: np.ndarray, parts: list, k: int) -> np.ndarray:
+    """Gram matrix of ``[X, r]`` over the rows of each fold.
+
+    Parameters
+    ----------
+    X : ndarray, shape (N, p)
+        Free columns (L/min per column unit).
+    r : ndarray, shape (N,)
+        ``y - F`` (L/min).
+    parts : list of (rows, fold)
+        Rows (a slice or an index array) and the fold they belong to; a fold's rows may come in
+        several parts.
+    k : int
+        Number of folds.
+
+    Returns
+    -------
+    ndarray, shape (k, p + 1, p + 1)
+        ``[X, r]^T [X, r]`` per fold (L/min squared per column unit squared).
+    """
+    p = X.shape[1]
+    G = np.zeros((k, p + 1, p + 1))
+    for rows, j in parts:
+        # three BLAS products on the part's rows (one BLAS thread, as the CLI runs): stacking
+        # [X, r] first cost a copy of the design, and einsum's loops were three times slower
+        Xb, rb = X[rows], r[rows]
+        xr = Xb.T @ rb
+        G[j, :p, :p] += Xb.T @ Xb
+        G[j, :p, p] += xr
+        G[j, p, :p] += xr
+        G[j, p, p] += rb @ rb
+    return G
 
 
 def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
     """Fit on all folds but one (least squares), predict every fold; for each left-out fold.
 
-    Rows are gathered once in fold order, so each fold's normal equations are
-    sums over one contiguous slice. Without a clip the squared errors follow
-    from them too (``e^T e = c - 2 theta^T b + theta^T A theta``), so no
-    prediction is formed.
+    Each fold's normal equations are sums over its blocks, each a contiguous run of rows (no
+    gather). Without a clip the squared errors follow from them too
+    (``e^T e = c - 2 theta^T b + theta^T A theta``), so no prediction is formed.
     """
     K = folds.k
-    order, edges = folds.fold_order()
-    sl = [slice(edges[k], edges[k + 1]) for k in range(K)]
-    p = design.X.shape[1]
-    # one gather and one Gram matrix per fold of [X, y - F]: the normal equations and the squared
-    # residual together; the rows a fit may not use (guards, clipped rows) are few, so their Gram
-    # matrix is subtracted rather than the fitted rows' formed anew
-    Z = np.column_stack([design.X, y - design.F])[order]
-    out = ~(folds.fit_ok & design.fit_ok)[order]
-    G = np.stack([_gram(Z[i], Z[i]) for i in sl])
-    Gw = G - np.stack([_gram(Z[i][out[i]], Z[i][out[i]]) for i in sl])
+    blocks = folds.cv_blocks()
+    X = design.X
+    p = X.shape[1]
+    r = y - design.F
+    # the normal equations and the squared residual together; the rows a fit may not use (guards,
+    # clipped rows) are few, so their Gram matrix is subtracted rather than the fitted rows' formed anew
+    G = _grams(X, r, blocks, K)
+    out = np.flatnonzero((folds.fold >= 0) & ~(folds.fit_ok & design.fit_ok))
+    Gw = G - _grams(X, r, [(out[folds.fold[out] == j], j) for j in range(K)], K)
     if p:
         A, b = Gw[:, :p, :p], Gw[:, :p, p]
         At, bt = A.sum(axis=0), b.sum(axis=0)
@@ -434,11 +465,11 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
         # sse[k, j] for theta_k on fold j
         sse = ca[None, :] - 2.0 * (theta.T @ ba.T) + np.einsum("pk,jpq,qk->kj", theta, Aa, theta)
     else:
-        Fo, yo = design.F[order], y[order]
-        q = clip(Fo[:, None] + Z[:, :p] @ theta, design.clip_hi, design.floor)
-        e2 = (q - yo[:, None]) ** 2
-        sse = np.stack([e2[i].sum(axis=0) for i in sl], axis=1)
-    return CVResult(sse, np.diff(edges))
+        sse = np.zeros((K, K))
+        for rows, j in blocks:
+            q = clip(design.F[rows, None] + X[rows] @ theta, design.clip_hi, design.floor)
+            sse[:, j] += ((q - y[rows, None]) ** 2).sum(axis=0)
+    return CVResult(sse, folds.cv_rows())
 
 
 def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:

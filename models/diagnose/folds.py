@@ -65,14 +65,19 @@ class Folds:
         """Rows a final model may be fitted on (training blocks, guards removed)."""
         return (self.fold >= 0) & self.fit_ok
 
-    def fold_order(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cross-validation rows in fold order and the fold edges in that order (cached)."""
-        cached = self.__dict__.get("_order")
+    def cv_blocks(self) -> list[tuple[slice, int]]:
+        """``(rows, fold)`` of every cross-validation block, each a contiguous run of rows (cached)."""
+        cached = self.__dict__.get("_blocks")
         if cached is None:
-            seg = [np.flatnonzero(self.fold == k) for k in range(self.k)]
-            cached = (np.concatenate(seg), np.cumsum([0] + [len(i) for i in seg]))
-            object.__setattr__(self, "_order", cached)
+            edges = np.searchsorted(self.block, np.arange(len(self.block_fold) + 1))
+            cached = [(slice(int(edges[b]), int(edges[b + 1])), int(self.block_fold[b]))
+                      for b in np.flatnonzero((self.block_fold >= 0) & (np.diff(edges) > 0))]
+            object.__setattr__(self, "_blocks", cached)
         return cached
+
+    def cv_rows(self) -> np.ndarray:
+        """Rows per cross-validation fold, shape (k,)."""
+        return np.bincount(self.fold[self.fold >= 0], minlength=self.k)
 
     def holdout_at(self, t_s: np.ndarray) -> np.ndarray:
         """Holdout flag for samples at times ``t_s`` (any rate) from the block edges."""
