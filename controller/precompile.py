@@ -77,6 +77,8 @@ def precompile_models(config_path: str = "config/run.toml") -> float:
             model.inverse_predict(flow_lpm)
     effects.generalized_play(np.linspace(0.0, 0.5, 4), np.linspace(-1.0, 1.0, 50), 0.1, 0.05)
     effects.first_order_lag(duty_pct, 20.0, 0.1, phase=0.5)
+    x_unit = np.linspace(-1.0, 1.0, 50)
+    effects.descending_lift(np.tile(x_unit[:, None], (1, 4)), x_unit, np.linspace(0.0, 0.5, 4))
     return time.perf_counter() - t0
 
 

@@ -249,22 +249,53 @@ def descending_lift(play_out: np.ndarray, x_unit: np.ndarray, r: np.ndarray) -> 
     ndarray, shape (N, m)
         ``dy_i/dc`` per row and operator, in [0, 1].
     """
-    x = np.asarray(x_unit, dtype=np.float64)
-    gap = play_out - x[:, None]
+    x = np.ascontiguousarray(x_unit, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
     tol = 1e-9 + 1e-9 * np.abs(r)
-    dx = np.r_[0.0, np.diff(x)][:, None]
-    wide = r > tol
-    # a zero threshold sits on both bounds: only the motion says which one drives it (at rest,
-    # the lifted descending bound keeps holding it up)
-    top = np.where(wide, gap >= r - tol, dx < 0)
-    bottom = np.where(wide, gap <= -r + tol, dx > 0)
-    s = np.clip((x + 1.0) / 2.0, 0.0, 1.0)
-    pinned = top | bottom
-    pinned[0] = True                                     # at rest at the first input: no lift yet
-    value = np.where(top, s[:, None], 0.0)
-    idx = np.where(pinned, np.arange(len(x))[:, None], 0)
-    np.maximum.accumulate(idx, axis=0, out=idx)
-    return np.take_along_axis(value, idx, axis=0)
+    # one compiled pass over the rows: the array version built six N x m temporaries and a
+    # gather (a third of a second on 150 000 rows and 51 operators)
+    return _lift(np.ascontiguousarray(play_out, dtype=np.float64), x, r > tol, r - tol, -r + tol)
+
+
+@njit(cache=True)
+def _lift(play_out, x, wide, top_gap, bottom_gap):
+    """:func:`descending_lift` row by row.
+
+    Parameters
+    ----------
+    play_out : ndarray, shape (N, m)
+        Symmetric play operator outputs (normalized input units).
+    x : ndarray, shape (N,)
+        Normalized input.
+    wide : ndarray of bool, shape (m,)
+        Operators whose threshold is above the tolerance.
+    top_gap, bottom_gap : ndarray, shape (m,)
+        ``y - x`` at or above which the descending bound drives a wide operator, at or below which
+        the ascending one does (normalized input units: the thresholds within their tolerance).
+
+    Returns
+    -------
+    ndarray, shape (N, m)
+        ``dy_i/dc``, in [0, 1].
+    """
+    n, m = play_out.shape
+    out = np.empty((n, m))
+    for k in range(n):
+        s = min(max((x[k] + 1.0) / 2.0, 0.0), 1.0)
+        dx = x[k] - x[k - 1] if k > 0 else 0.0
+        for i in range(m):
+            gap = play_out[k, i] - x[k]
+            if wide[i]:
+                top, bottom = gap >= top_gap[i], gap <= bottom_gap[i]
+            else:
+                # a zero threshold sits on both bounds: only the motion says which one drives it
+                # (at rest, the lifted descending bound keeps holding it up)
+                top, bottom = dx < 0.0, dx > 0.0
+            if top or bottom or k == 0:  # pinned to a bound (at rest at the first input: no lift yet)
+                out[k, i] = s if top else 0.0
+            else:  # between the bounds: the value the bound left
+                out[k, i] = out[k - 1, i]
+    return out
 
 
 def loop_offset(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.ndarray:
