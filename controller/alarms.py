@@ -76,7 +76,10 @@ class AlarmSettings:
 #: Per kind (:data:`KINDS` order), from ``_HELD``: since when its condition holds (nan: it does not), whether it
 #: is raised (0/1), when it was first raised (nan: never) and how many times.
 (_SINCE, _ACTIVE, _FIRST, _COUNT, _N_HELD) = range(5)
-N_BUFFER = _HELD + len(KINDS) * _N_HELD
+#: After the kinds: how many times an alarm was raised or cleared, all kinds together (a reader that keeps
+#: :meth:`Alarms.active` and :meth:`Alarms.counts` takes them anew only when it moved).
+_CHANGES = _HELD + len(KINDS) * _N_HELD
+N_BUFFER = _CHANGES + 1
 
 
 @njit(cache=True, inline="always")
@@ -84,6 +87,8 @@ def _update_held(A, j, t_s, cond):
     """Kind ``j``'s condition, which must hold for its hold time before it is raised; counts raisings."""
     o = _HELD + j * _N_HELD
     if not cond:
+        if A[o + _ACTIVE] != 0.0:
+            A[_CHANGES] += 1.0
         A[o + _SINCE], A[o + _ACTIVE] = np.nan, 0.0
         return
     if A[o + _SINCE] != A[o + _SINCE]:
@@ -91,6 +96,7 @@ def _update_held(A, j, t_s, cond):
     if A[o + _ACTIVE] == 0.0 and t_s - A[o + _SINCE] >= A[_HOLD + j] - 1e-9:
         A[o + _ACTIVE] = 1.0
         A[o + _COUNT] += 1.0
+        A[_CHANGES] += 1.0
         if A[o + _FIRST] != A[o + _FIRST]:
             A[o + _FIRST] = t_s
 
@@ -127,12 +133,17 @@ class Alarms:
     estimate; ``supply_bar`` nan without a supply reading. It is the compiled kernel's
     entry point itself, bound to this object's buffer (a loop step calls it directly).
 
+    ``view[CHANGES_AT]`` (a float read without numpy) counts the raisings and clearings so far: a reader that
+    keeps :meth:`active` and :meth:`counts` takes them anew only when it moved (the loop's status).
+
     Parameters
     ----------
     settings : AlarmSettings
     duty_min_pct, duty_max_pct : float
         The duty limits of the controller.
     """
+
+    CHANGES_AT = _CHANGES
 
     def __init__(self, settings: AlarmSettings, duty_min_pct: float, duty_max_pct: float):
         self.s = settings
@@ -143,8 +154,9 @@ class Alarms:
         a[_DUTY_LO] = duty_min_pct + settings.saturated_margin_pct
         a[_SUPPLY_LOW] = settings.supply_low_bar
         a[_HOLD:_HOLD + 3] = settings.saturated_hold_s, settings.mismatch_hold_s, settings.supply_hold_s
-        a[_ERR_LP], a[_SAT_ERR0] = 0.0, math.inf
-        held = a[_HELD:].reshape(len(KINDS), _N_HELD)
+        a[_ERR_LP], a[_SAT_ERR0], a[_CHANGES] = 0.0, math.inf, 0.0
+        self.view = memoryview(a)  # the buffer as Python floats
+        held = a[_HELD:_CHANGES].reshape(len(KINDS), _N_HELD)
         held[:, _ACTIVE] = held[:, _COUNT] = 0.0
         self._held = held
         self._scratch = a.copy()  # rehearse()'s buffer

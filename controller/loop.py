@@ -45,7 +45,17 @@ Per step (one period):
    ``status_hz``, record row;
 6. compute time (``compute_us``) = end of the step - wake: all of 2.-5., the
    payloads parsed and the command sent included (with the embedded valve,
-   its simulated step too).
+   its simulated step too); beside it the thread's CPU time over the same
+   step (``compute_cpu_us``: ``CLOCK_THREAD_CPUTIME_ID``, read just before
+   the step's first clock read and just after its last), which leaves out
+   the time the thread stood off its CPU: the hypervisor running something
+   else (host steal: this guest's kernel subtracts it from the tasks' clock,
+   ``CONFIG_PARAVIRT_TIME_ACCOUNTING``), or another thread of the guest
+   running on it (README: A step in microseconds).
+
+Status (``ctrl/status``, every ``rate_hz / status_hz`` steps): the faults' and the alarms' counts are taken
+anew only when they changed (:attr:`controller.watchdog.Faults.changes`, :attr:`controller.alarms.Alarms.view`),
+so a status step builds one dict of numbers and reuses the lists and dicts it built before.
 
 Allocation: the loop's per-step records are preallocated arrays; the law of
 the word in force advances in place in one compiled call
@@ -303,6 +313,9 @@ class RealClock:
     def now() -> float:
         return time.perf_counter()
 
+    #: The calling thread's CPU time, ns (``CLOCK_THREAD_CPUTIME_ID``): a step's ``cpu_s``.
+    cpu_ns = staticmethod(time.thread_time_ns)
+
     def wait_until(self, deadline: float, rehearse=None) -> float:
         """Sleep, then spin, to ``deadline``; ``rehearse()``, if given, runs between the two
         (:data:`REHEARSAL_S` earlier), unless the deadline has passed already."""
@@ -334,6 +347,9 @@ class SimClock:
 
     def now(self) -> float:
         return self.t
+
+    #: The calling thread's CPU time, ns: the step's work is real even when its time is simulated.
+    cpu_ns = staticmethod(time.thread_time_ns)
 
     def wait_until(self, deadline: float, rehearse=None) -> float:
         """Jump to ``deadline``: simulated time costs nothing to wait and needs no rehearsal."""
@@ -383,10 +399,10 @@ class _Columns:
     """
 
     FIELDS = ("t_s", "ref_lpm", "flow_lpm", "duty_pct", "ff_duty_pct", "fb_duty_pct", "limit_duty_pct",
-              "meas_age_ms", "lateness_s", "state", "word", "compute_s")  # word: index into control.MODES
+              "meas_age_ms", "lateness_s", "state", "word", "compute_s", "cpu_s")  # word: index into control.MODES
     ROW = struct.Struct(f"{len(FIELDS)}d")
-    #: The row without ``compute_s`` (written at the step's very end), and ``compute_s`` alone.
-    HEAD, LAST = struct.Struct(f"{len(FIELDS) - 1}d"), struct.Struct("d")
+    #: The row without ``compute_s`` and ``cpu_s`` (written at the step's very end), and those two alone.
+    HEAD, LAST = struct.Struct(f"{len(FIELDS) - 2}d"), struct.Struct("2d")
     __slots__ = ("buf", "n", "capacity")
 
     def __init__(self, capacity: int):
@@ -485,7 +501,7 @@ class Loop:
         observer = self.observer
         # the step's callees bound once (a lookup less per call)
         poll_measurement, command = transport.poll_measurement, transport.command
-        publish_error = transport.publish_error
+        publish_error, publish_status = transport.publish_error, transport.publish_status
         poll_mode = getattr(transport, "poll_mode", None)
         supply_bar = getattr(transport, "supply_bar", None)
         poll_reference, ahead = reference.poll, reference.ahead if getattr(reference, "preview_s", 0.0) > 0 else None
@@ -496,6 +512,7 @@ class Loop:
         sup_step = sup.step
         word_index = {w: i for i, w in enumerate(control.MODES)}
         pc = time.perf_counter
+        cpu_ns = getattr(clock, "cpu_ns", time.thread_time_ns)
         safe, flow_max = cfg.safe_duty_pct, cfg.flow_max_lpm
         stale_s, ref_stale_s = cfg.stale_ms * 1e-3, cfg.ref_stale_ms * 1e-3
         real_time = isinstance(clock, RealClock)  # a simulated clock does not stand still for the host
@@ -516,11 +533,16 @@ class Loop:
         iae = 0.0
         late_max = compute_max = 0.0  # since the last status
         last_wake = -math.inf
+        # The status's counts, taken anew only when they changed (Faults.changes, Alarms.changes)
+        faults_seen, fault_counts = -1, {}
+        alarm_view, alarm_changes_at = alarms.view, alarms.CHANGES_AT
+        alarms_seen, alarms_active, alarm_counts = -1.0, [], {}
 
         def step(now: float, due: float) -> None:
             """One step (1.-6. above): ``now`` its wake, ``due`` when it was due (deadline or arrival)."""
             nonlocal meas_t, ref_t, state, stale, ref_stale, ctrl, meas, ref_in, duty, ff, fb, steps, iae, late_max
-            nonlocal compute_max, last_wake
+            nonlocal compute_max, last_wake, faults_seen, fault_counts, alarms_seen, alarms_active, alarm_counts
+            k0 = cpu_ns()
             c0 = pc()
             last_wake = now
             t = now - t0
@@ -583,6 +605,10 @@ class Loop:
             supply = supply_bar() if supply_bar is not None else None
             alarm_step(t, state == RUNNING, duty, err, sup.mismatch_lpm, math.nan if supply is None else supply)
             if steps % status_every == 0:
+                if faults.changes != faults_seen:
+                    faults_seen, fault_counts = faults.changes, faults.counts()
+                if alarm_view[alarm_changes_at] != alarms_seen:
+                    alarms_seen, alarms_active, alarm_counts = alarm_view[alarm_changes_at], alarms.active(), alarms.counts()
                 status = {
                     "state": STATES[state],
                     "controller": sup.word,
@@ -595,12 +621,12 @@ class Loop:
                     "overruns": overruns,
                     "lateness_us_max": late_max * 1e6,
                     "compute_us_max": compute_max * 1e6,
-                    "faults": faults.counts(),
-                    "alarms": alarms.active(),
-                    "alarm_counts": alarms.counts(),
+                    "faults": fault_counts,
+                    "alarms": alarms_active,
+                    "alarm_counts": alarm_counts,
                 }
                 late_max = compute_max = 0.0
-                transport.publish_status(t, status)
+                publish_status(t, status)
                 if observer is not None:
                     observer(t, status)
             i = cols.n
@@ -616,7 +642,8 @@ class Loop:
                 writer.write((t, ref, 0.0 if meas != meas else meas, duty, ff, fb, STATES[state], sup.word, limit,
                               age_ms))
             end = pc() - c0
-            pack_last(cols.buf, row + last_at, end)
+            cpu = (cpu_ns() - k0) * 1e-9
+            pack_last(cols.buf, row + last_at, end, cpu)
             if end > compute_max:
                 compute_max = end
             if late > late_max:

@@ -9,6 +9,13 @@ Tracking figures cover the steps in the running state; ``steady_mae_lpm``
 the running steps where the reference has not changed for at least 100 ms;
 ``iae`` is the integral of |ref - flow| over time in litres
 (L/min x s / 60). Timing figures are over every step.
+
+Beside DESIGN.md's keys (all kept as they are): ``compute_cpu_us`` (p50, p99,
+max), the thread's CPU time over each step's ``compute_us`` window, and
+``steps_off_cpu``, the steps whose ``compute_us`` exceeded their CPU time by
+more than :data:`OFF_CPU_US`: the thread stood off its CPU within the step
+(host steal, or another thread of the guest), which the deadline pays for
+all the same (README: A step in microseconds).
 """
 from __future__ import annotations
 
@@ -24,6 +31,8 @@ from .loop import LoopResult
 from .watchdog import RUNNING
 
 STEADY_AFTER_S = 0.100
+#: A step whose wall time exceeds its thread's CPU time by more than this, µs, counts in ``steps_off_cpu``.
+OFF_CPU_US = 20.0
 #: Window of the run plot's running mean of the error, s.
 ERROR_MEAN_S = 0.050
 
@@ -72,6 +81,8 @@ def summary(result: LoopResult, controller: str, plant: str) -> dict:
         "overruns": result.overruns,
         "lateness_us": _pct_us(c["lateness_s"]),
         "compute_us": _pct_us(c["compute_s"]),
+        "compute_cpu_us": _pct_us(c["cpu_s"]),
+        "steps_off_cpu": int(np.count_nonzero(c["compute_s"] - c["cpu_s"] > OFF_CPU_US * 1e-6)),
         "tracking": tracking(c["t_s"], c["ref_lpm"], c["flow_lpm"], c["state"] == RUNNING),
         "faults": result.faults.to_list(),
         "alarms": result.alarms.to_list() if result.alarms is not None else [],
@@ -80,7 +91,7 @@ def summary(result: LoopResult, controller: str, plant: str) -> dict:
 
 def summary_text(s: dict) -> str:
     """The summary as a few readable lines."""
-    tr, la, co = s["tracking"], s["lateness_us"], s["compute_us"]
+    tr, la, co, cc = s["tracking"], s["lateness_us"], s["compute_us"], s["compute_cpu_us"]
 
     def f(v, fmt):
         return "-" if v is None else format(v, fmt)
@@ -90,6 +101,8 @@ def summary_text(s: dict) -> str:
         f"{s['overruns']} overruns",
         f"lateness us p50 {f(la['p50'], '.1f')} p99 {f(la['p99'], '.1f')} max {f(la['max'], '.0f')}; "
         f"compute us p50 {f(co['p50'], '.1f')} p99 {f(co['p99'], '.1f')} max {f(co['max'], '.0f')}",
+        f"compute CPU us (the thread's) p50 {f(cc['p50'], '.1f')} p99 {f(cc['p99'], '.1f')} max {f(cc['max'], '.0f')}; "
+        f"{s['steps_off_cpu']} steps off CPU > {OFF_CPU_US:.0f} us",
         f"tracking: MAE {f(tr['mae_lpm'], '.3f')} L/min, RMSE {f(tr['rmse_lpm'], '.3f')} L/min, "
         f"IAE {f(tr['iae'], '.4f')} L, steady MAE {f(tr['steady_mae_lpm'], '.3f')} L/min",
         "faults: " + (", ".join(f"{x['kind']} x{x['count']} (first at {x['first_s']:.3f} s)" for x in s["faults"])
@@ -187,7 +200,7 @@ class RunResult:
     def write_report(self, folder) -> Path:
         """``folder/report.md``: the summary's figures, faults and alarms, and the run plot."""
         s = self.summary()
-        tr, la, co = s["tracking"], s["lateness_us"], s["compute_us"]
+        tr, la, co, cc = s["tracking"], s["lateness_us"], s["compute_us"], s["compute_cpu_us"]
 
         def f(v, fmt=".4g"):
             return "-" if v is None else format(v, fmt)
@@ -201,6 +214,8 @@ class RunResult:
             f"| overruns | {s['overruns']} |",
             f"| lateness p50 / p99 / max | {f(la['p50'])} / {f(la['p99'])} / {f(la['max'])} us |",
             f"| compute p50 / p99 / max | {f(co['p50'])} / {f(co['p99'])} / {f(co['max'])} us |",
+            f"| compute, the thread's CPU time, p50 / p99 / max | {f(cc['p50'])} / {f(cc['p99'])} / {f(cc['max'])} us |",
+            f"| steps off CPU (wall > CPU + {OFF_CPU_US:.0f} us) | {s['steps_off_cpu']} |",
             f"| MAE, RMSE | {f(tr['mae_lpm'])}, {f(tr['rmse_lpm'])} L/min |",
             f"| IAE | {f(tr['iae'])} L |",
             f"| steady MAE (reference constant >= 100 ms) | {f(tr['steady_mae_lpm'])} L/min |",

@@ -24,15 +24,21 @@ def in_range(lo: float, hi: float):
 
 
 class Faults:
-    """Fault kinds with the time of the first occurrence and a count (the summary's ``faults``)."""
+    """Fault kinds with the time of the first occurrence and a count (the summary's ``faults``).
+
+    ``changes`` counts the calls that changed a count: a reader that keeps :meth:`counts` takes them anew only
+    when it moved (the loop's status).
+    """
 
     def __init__(self):
         self._first: dict[str, float] = {}
         self._count: dict[str, int] = {}
+        self.changes = 0
 
     def add(self, kind: str, t_s: float, n: int = 1) -> None:
         if n <= 0:
             return
+        self.changes += 1
         if kind not in self._first:
             self._first[kind] = t_s
             self._count[kind] = 0

@@ -202,9 +202,10 @@ def test_record_is_a_recording_with_one_row_per_step_and_summary_has_the_design_
                           "controller"]
     assert set(rec.text_columns["controller"]) == {"ff+pid"}
     s = json.loads(json.dumps(summary(res, "ff+pid", "sim")))
-    assert set(s) == {"controller", "plant", "rate_hz", "steps", "overruns", "lateness_us", "compute_us",
-                      "tracking", "faults", "alarms"}
-    assert set(s["lateness_us"]) == set(s["compute_us"]) == {"p50", "p99", "max"}
+    design = {"controller", "plant", "rate_hz", "steps", "overruns", "lateness_us", "compute_us", "tracking",
+              "faults", "alarms"}
+    assert set(s) == design | {"compute_cpu_us", "steps_off_cpu"}  # DESIGN.md's keys, and two added beside them
+    assert set(s["lateness_us"]) == set(s["compute_us"]) == set(s["compute_cpu_us"]) == {"p50", "p99", "max"}
     assert set(s["tracking"]) == {"mae_lpm", "rmse_lpm", "iae", "steady_mae_lpm"}
 
 
@@ -514,7 +515,7 @@ def test_a_rehearsed_run_records_exactly_what_an_unrehearsed_one_does(cfg, model
     assert a.alarms.to_list() == b.alarms.to_list() and a.faults.to_list() == b.faults.to_list()
     assert a.columns.keys() == b.columns.keys()
     for k in a.columns:
-        if k != "compute_s":
+        if k not in ("compute_s", "cpu_s"):
             np.testing.assert_array_equal(a.columns[k], b.columns[k], err_msg=k)
 
 
@@ -675,3 +676,94 @@ def test_measurement_trigger_a_flood_of_measurements_steps_at_most_at_twice_the_
     assert during.sum() <= 2 * (arrivals[-1] - arrivals[0]) / period + BURST_STEPS + 1
     assert during.sum() + res.overruns >= len(arrivals)  # each stepped, or counted (watchdog steps take some)
     assert np.all(res.columns["state"][during][1:] == RUNNING) and "stale" not in res.faults.counts()
+
+
+def test_cpu_time_beside_compute_time_leaves_out_the_time_off_cpu(cfg, model):
+    """Each step records its thread's CPU time beside its wall time (``compute_s``): a step whose thread slept
+    3 ms (off its CPU, as a step the host stole from) has 3 ms more wall than CPU time and counts in
+    ``steps_off_cpu``; ``compute_us`` stays the wall figure."""
+    import time
+
+    from controller.run_summary import OFF_CPU_US
+
+    sleepers = {100, 250, 400}
+
+    class Sleepy(Dropout):
+        n = 0
+
+        def command(self, duty_pct, t_s):
+            if self.n in sleepers:
+                time.sleep(3e-3)
+            self.n += 1
+            super().command(duty_pct, t_s)
+
+    res = run(cfg, model, transport=Sleepy(sim_plant(cfg)), duration=0.5)
+    c = res.columns
+    wall, cpu = c["compute_s"], c["cpu_s"]
+    assert np.all(cpu > 0) and np.all(np.isfinite(cpu))
+    k = sorted(sleepers)
+    assert np.all(wall[k] >= 3e-3) and np.all(wall[k] - cpu[k] >= 2.5e-3)  # the sleep is wall time, not CPU
+    assert np.median(cpu - wall) <= 5e-6  # the CPU reads enclose the wall reads: no more than their own cost
+    s = summary(res, "ff+kf", "sim")
+    assert s["compute_us"]["max"] == pytest.approx(float(np.max(wall)) * 1e6)
+    assert s["compute_cpu_us"]["max"] == pytest.approx(float(np.max(cpu)) * 1e6)
+    assert s["steps_off_cpu"] == int(np.count_nonzero(wall - cpu > OFF_CPU_US * 1e-6)) >= len(sleepers)
+
+
+def test_each_status_has_the_counts_a_recount_gives(cfg, model, monkeypatch):
+    """The status reuses its faults' and alarms' counts until they change (Faults.changes, the alarms' change
+    count): every status published carries exactly what a recount at that step gives, through faults, an
+    alarm raised and cleared, and a stale gap."""
+    import controller.loop as loop_mod
+
+    made = {}
+
+    class Watched(loop_mod.Faults):
+        def __init__(self):
+            super().__init__()
+            made["faults"] = self
+
+    class WatchedAlarms(loop_mod.Alarms):
+        def __init__(self, *a):
+            super().__init__(*a)
+            made["alarms"] = self
+
+    monkeypatch.setattr(loop_mod, "Faults", Watched)
+    monkeypatch.setattr(loop_mod, "Alarms", WatchedAlarms)
+    statuses, recounts = [], []
+
+    class Watching(Dropout):
+        def publish_status(self, t_s, status):
+            statuses.append(json.loads(json.dumps(status)))
+            f, a = made["faults"], made["alarms"]
+            recounts.append(json.loads(json.dumps({"faults": f.counts(), "alarms": a.active(),
+                                                   "alarm_counts": a.counts()})))
+
+    valve = Watching(sim_plant(cfg), gap=(1.5, 1.6), bad_at={300: math.nan, 320: 1e6, 1750: math.inf})
+    valve._injections = [(0.5, "supply_bar", 0.3), (0.9, "supply_bar", 3.0), (1.2, "supply_bar", 0.3),
+                         (1.4, "supply_bar", 3.0)]
+    res = run(cfg, model, transport=valve, duration=2.0)
+    assert len(statuses) == 20
+    for st, rc in zip(statuses, recounts):
+        assert {k: st[k] for k in rc} == rc
+    assert any("supply_low" in st["alarms"] for st in statuses) and "supply_low" not in statuses[-1]["alarms"]
+    assert statuses[-1]["alarm_counts"]["supply_low"] == 2
+    assert set(statuses[-1]["faults"]) == {"bad_measurement", "stale"} == set(res.faults.counts())
+
+
+def test_alarms_change_count_moves_whenever_an_alarm_is_raised_or_cleared():
+    """The alarms' change count (the status's cue to recount) moves exactly when the active alarms or the
+    counts change."""
+    alarms = Alarms(AlarmSettings(), 0.0, 100.0)
+    rng = np.random.default_rng(3)
+    seen = (alarms.view[alarms.CHANGES_AT], alarms.active(), alarms.counts())
+    moved = 0
+    for k in range(3000):
+        supply = 1.0 if (k // 200) % 2 else 3.0
+        alarms.step(k * 1e-3, True, float(rng.uniform(0, 100)), float(rng.normal(0, 3)),
+                    float(rng.normal(0, 12)), supply)
+        now = (alarms.view[alarms.CHANGES_AT], alarms.active(), alarms.counts())
+        assert (now[0] != seen[0]) == (now[1:] != seen[1:])
+        moved += now[0] != seen[0]
+        seen = now
+    assert moved >= 10

@@ -215,6 +215,7 @@ def test_a_stalled_step_shows_in_the_summary():
                clock=RealClock()).run(0.6)
     s = summary(res, "ff+pid", "sim")
     assert s["compute_us"]["max"] >= stall_s * 1e6
+    assert s["compute_cpu_us"]["max"] < stall_s * 1e6 / 2 and s["steps_off_cpu"] >= 1  # asleep: off its CPU
     assert s["overruns"] >= int(stall_s * rate) - 1
     assert s["steps"] + s["overruns"] == int(0.6 * rate)
     assert {f["kind"]: f["count"] for f in s["faults"]}.get("stalled") == 1
