@@ -533,7 +533,7 @@ class Loop:
         iae = 0.0
         late_max = compute_max = 0.0  # since the last status
         last_wake = -math.inf
-        # The status's counts, taken anew only when they changed (Faults.changes, Alarms.changes)
+        # The status's counts, taken anew only when they changed (Faults.changes, the alarms' change count)
         faults_seen, fault_counts = -1, {}
         alarm_view, alarm_changes_at = alarms.view, alarms.CHANGES_AT
         alarms_seen, alarms_active, alarm_counts = -1.0, [], {}
