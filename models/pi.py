@@ -191,11 +191,7 @@ def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, c
         A = np.column_stack([Y, np.ones(len(y)), extra])
         theta = _least_squares(A, y, np.concatenate([np.zeros(m), np.full(1 + extra.shape[1], -np.inf)]))
         return theta[:m], float(theta[m]), theta[m + 1:]
-    # Unknowns: partial sums s_i = sum_{j<=i} w_j (the loading-curve slopes), so w = D s with
-    # D the first difference; Y @ w = (Y @ D) @ s, whose columns Y_i - Y_{i+1} (last: Y_m) are
-    # far better conditioned than Y's (about 1e3 against 4e3 on the bench recording).
-    YD = Y.copy()
-    YD[:, :-1] -= Y[:, 1:]
+    YD = slope_columns(Y)
     # extra columns scaled to the operators' size, so that the Gram matrix stays well enough
     # conditioned for its Cholesky factor (else the N-row QR, a hundred times slower)
     scale = np.sqrt(np.mean(extra * extra, axis=0)) if len(y) else np.ones(extra.shape[1])
@@ -211,30 +207,145 @@ def fit_weights(Y: np.ndarray, y: np.ndarray, extra: np.ndarray | None = None, c
 _CHOLESKY_COND_MAX = 1e6
 
 
-def _least_squares(A: np.ndarray, b: np.ndarray, lb: np.ndarray | None = None) -> np.ndarray:
-    """``argmin ||A t - b||`` subject to ``t >= lb``, on a compressed problem.
+def slope_columns(Y: np.ndarray) -> np.ndarray:
+    """Operator outputs as the columns of the slope unknowns of :func:`fit_weights`.
 
-    ``||A t - b||^2 = ||R t - c||^2 + const`` with ``R^T R = A^T A`` and ``R^T c = A^T b``,
-    so the problem is solved on the small triangle ``R`` instead of the N rows of ``A``
-    (Cholesky of the Gram matrix when well conditioned, QR otherwise). When the free
-    optimum already meets the bounds it is the bounded optimum too (convex problem).
+    Unknowns: partial sums ``s_i = sum_{j<=i} w_j`` (the loading-curve slopes), so ``w = D s``
+    with ``D`` the first difference; ``Y @ w = (Y @ D) @ s``, whose columns ``Y_i - Y_{i+1}``
+    (last: ``Y_m``) are far better conditioned than Y's (about 1e3 against 4e3 on the bench
+    recording).
+
+    Parameters
+    ----------
+    Y : ndarray, shape (N, m)
+        Play operator outputs (normalized input units).
+
+    Returns
+    -------
+    ndarray, shape (N, m)
+        ``Y @ D`` (normalized input units).
     """
-    G = A.T @ A
+    YD = Y.copy()
+    YD[:, :-1] -= Y[:, 1:]
+    return YD
+
+
+@dataclass(frozen=True, eq=False)
+class SlopeRows:
+    """The operator part of :func:`fit_weights`' normal equations on a set of rows, formed once.
+
+    A refit on the same operators and rows with other extra columns or another output (every
+    grid point of a screen that refits the PI with an effect column) reuses it: the N x m
+    product and the gather of the rows are its cost.
+
+    Attributes
+    ----------
+    YD : ndarray, shape (n, m)
+        :func:`slope_columns` of the rows (normalized input units).
+    gram : ndarray, shape (m, m)
+        ``YD^T YD``.
+    total : ndarray, shape (m,)
+        ``YD^T 1`` (the offset's column).
+    """
+
+    YD: np.ndarray
+    gram: np.ndarray
+    total: np.ndarray
+
+    @classmethod
+    def of(cls, Y: np.ndarray) -> "SlopeRows":
+        """The normal equations' operator part of the operator outputs ``Y`` (n, m)."""
+        YD = slope_columns(Y)
+        return cls(YD, YD.T @ YD, YD.sum(axis=0))
+
+
+def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarray, float, np.ndarray]:
+    """:func:`fit_weights` (constrained, with extra columns) on the union of row sets, from their
+    normal equations.
+
+    Parameters
+    ----------
+    parts : list of (SlopeRows, ndarray, ndarray)
+        Per row set: its :class:`SlopeRows`, the output on its rows (n,), normalized, and the
+        extra columns on its rows (n, p).
+    min_slope : float
+        Lower bound for the loading-curve slopes, normalized units.
+
+    Returns
+    -------
+    w : ndarray, shape (m,)
+        Weights.
+    offset : float
+        Offset ``c``.
+    coef : ndarray, shape (p,)
+        Coefficients of the extra columns.
+    """
+    m, p = parts[0][0].gram.shape[0], parts[0][2].shape[1]
+    n = sum(len(y) for _, y, _ in parts)
+    # extra columns scaled to the operators' size, as fit_weights scales them
+    ee = sum(np.einsum("np,np->p", E, E) for _, _, E in parts)
+    scale = np.sqrt(ee / n) if n else np.ones(p)
+    scale = np.where(scale > 0, scale, 1.0)
+    G = np.zeros((m + 1 + p, m + 1 + p))
+    Atb = np.zeros(m + 1 + p)
+    for rows, y, E in parts:
+        Es = E / scale
+        ye = np.column_stack([y, Es])
+        cross = rows.YD.T @ ye
+        G[:m, :m] += rows.gram
+        G[:m, m] += rows.total
+        G[:m, m + 1:] += cross[:, 1:]
+        G[m, m] += len(y)
+        G[m, m + 1:] += Es.sum(axis=0)
+        G[m + 1:, m + 1:] += Es.T @ Es
+        Atb[:m] += cross[:, 0]
+        Atb[m] += y.sum()
+        Atb[m + 1:] += Es.T @ y
+    G = np.triu(G) + np.triu(G, 1).T
+    lb = np.concatenate([np.full(m, min_slope), np.full(1 + p, -np.inf)])
+    R = _cholesky_triangle(G)
+    if R is None:  # ill conditioned: the rows themselves, compressed by QR
+        A = np.vstack([np.column_stack([rows.YD, np.ones(len(y)), E / scale]) for rows, y, E in parts])
+        theta = _least_squares(A, np.concatenate([y for _, y, _ in parts]), lb)
+    else:
+        theta = _bounded(R, np.linalg.solve(R.T, Atb), lb)
+    return np.diff(theta[:m], prepend=0.0), float(theta[m]), theta[m + 1:] / scale
+
+
+def _cholesky_triangle(G: np.ndarray) -> np.ndarray | None:
+    """Upper triangle ``R`` with ``R^T R = G``, or ``None`` when ``G`` is not positive definite or
+    ``R``'s condition number is above :data:`_CHOLESKY_COND_MAX`."""
     try:
         R = np.linalg.cholesky(G).T
-        ok = np.linalg.cond(R) < _CHOLESKY_COND_MAX
     except np.linalg.LinAlgError:
-        ok = False
-    if ok:
-        c = np.linalg.solve(R.T, A.T @ b)
-    else:
-        Rab = np.linalg.qr(np.column_stack([A, b]), mode="r")
-        R, c = Rab[: A.shape[1], : A.shape[1]], Rab[: A.shape[1], A.shape[1]]
+        return None
+    return R if np.linalg.cond(R) < _CHOLESKY_COND_MAX else None
+
+
+def _bounded(R: np.ndarray, c: np.ndarray, lb: np.ndarray | None) -> np.ndarray:
+    """``argmin ||R t - c||`` subject to ``t >= lb``; the free optimum when it already meets the
+    bounds (it is then the bounded one too: a convex problem)."""
     free = np.linalg.lstsq(R, c, rcond=None)[0]
     if lb is None or np.all(free >= lb):
         return free
     res = lsq_linear(R, c, bounds=(lb, np.full(len(lb), np.inf)), method="bvls", tol=1e-12, max_iter=5000)
     return res.x
+
+
+def _least_squares(A: np.ndarray, b: np.ndarray, lb: np.ndarray | None = None) -> np.ndarray:
+    """``argmin ||A t - b||`` subject to ``t >= lb``, on a compressed problem.
+
+    ``||A t - b||^2 = ||R t - c||^2 + const`` with ``R^T R = A^T A`` and ``R^T c = A^T b``,
+    so the problem is solved on the small triangle ``R`` instead of the N rows of ``A``
+    (Cholesky of the Gram matrix when well conditioned, QR otherwise).
+    """
+    R = _cholesky_triangle(A.T @ A)
+    if R is not None:
+        c = np.linalg.solve(R.T, A.T @ b)
+    else:
+        Rab = np.linalg.qr(np.column_stack([A, b]), mode="r")
+        R, c = Rab[: A.shape[1], : A.shape[1]], Rab[: A.shape[1], A.shape[1]]
+    return _bounded(R, c, lb)
 
 
 def fit_core(x: np.ndarray, y: np.ndarray, rate_hz: float, n: int | None = None) -> PIModel:

@@ -35,7 +35,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from .. import play
 from ..model import FittedModel
-from ..pi import PIModel, fit_pi, fit_weights
+from ..pi import PIModel, SlopeRows, fit_pi, fit_weights, fit_weights_on
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
@@ -170,10 +170,19 @@ class Base:
         cache = self.root.cache
         hit = cache.get(k)
         if hit is None:
-            for old in [key for key in cache if isinstance(key, tuple) and key[0] == "S"]:
-                del cache[old]  # one chain at a time: each entry is N x m
+            for old in [key for key in cache if isinstance(key, tuple) and key[0] in ("S", "D")]:
+                del cache[old]  # one chain at a time: each entry is N x m (its slope rows with it)
             hit = cache[k] = at_sensor(self.regressors(sig, chain), sig, rest)
         return hit
+
+    def slope_rows(self, sig: Signals, chain: dict, rows: np.ndarray) -> SlopeRows:
+        """The operator part of a PI refit's normal equations (:class:`models.pi.SlopeRows`) of
+        :meth:`regressors_at_sensor` on ``rows`` (cached with it: every grid point of a joint screen
+        refits the PI on the same operators and rows, with another effect column)."""
+        Y = self.regressors_at_sensor(sig, chain)
+        rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
+        key = ("D", id(sig), inputs(sig, chain)[2], repr(sorted(rest.items())), rows.tobytes())
+        return self.root._cached(key, lambda: SlopeRows.of(Y[rows]), keep=2)
 
 
 def shut_rows(flow_lpm: np.ndarray) -> np.ndarray:
@@ -498,22 +507,38 @@ def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
 
 
 def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndarray, shut: np.ndarray,
-                 zero_unit: float) -> tuple:
+                 zero_unit: float, open_rows: SlopeRows | None = None) -> tuple:
     """:func:`models.pi.fit_weights` on ``rows`` where a valve shut by itself is censored at zero flow.
 
     A shut row only says that the flow the valve would pass is at most zero: fitted first without
     the shut rows, then again with those where that fit has the valve open (one step of a Tobit
     regression), so the loading curve may run on below zero where the valve closes.
+
+    Parameters
+    ----------
+    Y : ndarray, shape (N, m)
+        Play operator outputs (normalized input units).
+    y_unit : ndarray, shape (N,)
+        Measured flow, normalized.
+    H : ndarray, shape (N, p)
+        Columns fitted jointly (normalized output per column unit).
+    rows, shut : ndarray of bool, shape (N,)
+        Rows to fit on; rows where the valve is shut by itself.
+    zero_unit : float
+        Zero flow, normalized.
+    open_rows : SlopeRows, optional
+        ``SlopeRows.of(Y[rows & ~shut])`` when already formed (:meth:`Base.slope_rows`).
     """
     fr = rows & ~shut
-    w, offset, coef = fit_weights(Y[fr], y_unit[fr], H[fr])
+    parts = [(open_rows or SlopeRows.of(Y[fr]), y_unit[fr], H[fr])]
+    w, offset, coef = fit_weights_on(parts)
     over = rows & shut
     if not over.any():
         return w, offset, coef
     over[over] = Y[over] @ w + offset + H[over] @ coef > zero_unit
     if over.any():
-        fr = fr | over
-        w, offset, coef = fit_weights(Y[fr], y_unit[fr], H[fr])
+        parts.append((SlopeRows.of(Y[over]), y_unit[over], H[over]))
+        w, offset, coef = fit_weights_on(parts)
     return w, offset, coef
 
 
@@ -582,7 +607,9 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     ys = m.y_scale
     Y = base.regressors_at_sensor(sig, chain)
     y_unit = ys.to_unit(sig.flow_lpm)
-    w, offset, _ = censored_fit(Y, y_unit, H / ys.half_range, fr, base.shut(sig), float(ys.to_unit(0.0)))
+    shut = base.shut(sig)
+    w, offset, _ = censored_fit(Y, y_unit, H / ys.half_range, fr, shut, float(ys.to_unit(0.0)),
+                                base.slope_rows(sig, chain, fr & ~shut))
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
     return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root)
