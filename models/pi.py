@@ -225,8 +225,9 @@ def slope_columns(Y: np.ndarray) -> np.ndarray:
     ndarray, shape (N, m)
         ``Y @ D`` (normalized input units).
     """
-    YD = Y.copy()
-    YD[:, :-1] -= Y[:, 1:]
+    YD = np.empty_like(Y)
+    np.subtract(Y[:, :-1], Y[:, 1:], out=YD[:, :-1])  # (one pass: no copy of Y first)
+    YD[:, -1] = Y[:, -1]
     return YD
 
 
@@ -283,17 +284,16 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarra
     m, p = parts[0][0].gram.shape[0], parts[0][2].shape[1]
     n = sum(len(y) for _, y, _ in parts)
     # extra columns scaled to the operators' size, as fit_weights scales them
-    ee = sum(np.einsum("np,np->p", E, E) for _, _, E in parts)
-    scale = np.sqrt(ee / n) if n else np.ones(p)
+    scale = np.sqrt(sum(np.sum(E * E, axis=0) for _, _, E in parts) / n) if n else np.ones(p)
     scale = np.where(scale > 0, scale, 1.0)
+    # the upper triangle, block by block: operators, offset, extra columns
     G = np.zeros((m + 1 + p, m + 1 + p))
     Atb = np.zeros(m + 1 + p)
-    for rows, y, E in parts:
+    for ops, y, E in parts:
         Es = E / scale
-        ye = np.column_stack([y, Es])
-        cross = rows.YD.T @ ye
-        G[:m, :m] += rows.gram
-        G[:m, m] += rows.total
+        cross = ops.YD.T @ np.column_stack([y, Es])
+        G[:m, :m] += ops.gram
+        G[:m, m] += ops.total
         G[:m, m + 1:] += cross[:, 1:]
         G[m, m] += len(y)
         G[m, m + 1:] += Es.sum(axis=0)
@@ -305,7 +305,7 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarra
     lb = np.concatenate([np.full(m, min_slope), np.full(1 + p, -np.inf)])
     R = _cholesky_triangle(G)
     if R is None:  # ill conditioned: the rows themselves, compressed by QR
-        A = np.vstack([np.column_stack([rows.YD, np.ones(len(y)), E / scale]) for rows, y, E in parts])
+        A = np.vstack([np.column_stack([ops.YD, np.ones(len(y)), E / scale]) for ops, y, E in parts])
         theta = _least_squares(A, np.concatenate([y for _, y, _ in parts]), lb)
     else:
         theta = _bounded(R, np.linalg.solve(R.T, Atb), lb)

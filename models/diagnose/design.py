@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from .. import play
 from ..model import FittedModel
@@ -166,7 +165,7 @@ class Base:
         """:meth:`regressors` through the dead zone, delay and lag of ``chain`` (cached: a joint test
         refits the PI under the same chain at every grid point of the effect it tests)."""
         rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
-        k = ("S", id(sig), inputs(sig, chain)[2], repr(sorted(rest.items())))
+        k = ("S", *self._at_sensor_key(sig, chain))
         cache = self.root.cache
         hit = cache.get(k)
         if hit is None:
@@ -180,9 +179,15 @@ class Base:
         :meth:`regressors_at_sensor` on ``rows`` (cached with it: every grid point of a joint screen
         refits the PI on the same operators and rows, with another effect column)."""
         Y = self.regressors_at_sensor(sig, chain)
-        rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
-        key = ("D", id(sig), inputs(sig, chain)[2], repr(sorted(rest.items())), rows.tobytes())
+        key = ("D", *self._at_sensor_key(sig, chain), rows.tobytes())
         return self.root._cached(key, lambda: SlopeRows.of(Y[rows]), keep=2)
+
+    @staticmethod
+    def _at_sensor_key(sig: Signals, chain: dict) -> tuple:
+        """What :meth:`regressors_at_sensor` depends on: the signals, the input-side laws and the
+        words the operators pass through (not those fitted jointly with the PI)."""
+        rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
+        return id(sig), inputs(sig, chain)[2], repr(sorted(rest.items()))
 
 
 def shut_rows(flow_lpm: np.ndarray) -> np.ndarray:
@@ -402,14 +407,35 @@ class CVResult:
 
 
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    p = A.shape[0]
-    lam = RIDGE * max(np.trace(A) / p, 1e-12)
+    """Normal equations ``A x = b`` with a relative ridge (:data:`RIDGE`), one system or a stack.
+
+    Parameters
+    ----------
+    A : ndarray, shape (p, p) or (K, p, p)
+        Gram matrices (symmetric, positive semi-definite).
+    b : ndarray, shape (p,) or (K, p)
+        Right-hand sides.
+
+    Returns
+    -------
+    ndarray, shape (p,) or (K, p)
+        Solutions, in ``b``'s unit per ``A``'s.
+    """
+    p = A.shape[-1]
+    lam = RIDGE * np.maximum(np.trace(A, axis1=-2, axis2=-1) / p, 1e-12)
+    M = A + lam[..., None, None] * np.eye(p)
     try:
-        return cho_solve(cho_factor(A + lam * np.eye(p)), b)
-    except LinAlgError:
+        # a stack in one call: a fold's system is a few columns, so scipy's per-call checks cost
+        # more than the factorization
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        if M.ndim == 3:  # the systems one by one, each its own way
+            return np.stack([solve(a, c) for a, c in zip(A, b)])
         # two columns equal to rounding (a fold's Gram matrix subtracted from the whole leaves a
         # difference of near-equal sums): the minimum-norm solution
-        return np.linalg.lstsq(A + lam * np.eye(p), b, rcond=1e-12)[0]
+        return np.linalg.lstsq(M, b, rcond=1e-12)[0]
+    z = np.linalg.solve(L, b[..., None])
+    return np.linalg.solve(np.swapaxes(L, -1, -2), z)[..., 0]
 
 
 def _grams(X: np.ndarray, r: np.ndarray, parts: list, k: int) -> np.ndarray:
@@ -466,7 +492,7 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
     if p:
         A, b = Gw[:, :p, :p], Gw[:, :p, p]
         At, bt = A.sum(axis=0), b.sum(axis=0)
-        theta = np.column_stack([solve(At - A[k], bt - b[k]) for k in range(K)])
+        theta = solve(At - A, bt - b).T
     else:
         theta = np.zeros((0, K))
     if not design.clipped:

@@ -76,8 +76,12 @@ class Folds:
         return cached
 
     def cv_rows(self) -> np.ndarray:
-        """Rows per cross-validation fold, shape (k,)."""
-        return np.bincount(self.fold[self.fold >= 0], minlength=self.k)
+        """Rows per cross-validation fold, shape (k,) (cached)."""
+        cached = self.__dict__.get("_rows")
+        if cached is None:
+            cached = np.bincount(self.fold[self.fold >= 0], minlength=self.k)
+            object.__setattr__(self, "_rows", cached)
+        return cached
 
     def holdout_at(self, t_s: np.ndarray) -> np.ndarray:
         """Holdout flag for samples at times ``t_s`` (any rate) from the block edges."""
