@@ -48,11 +48,27 @@ def test_lag_is_zoh_step_response(tau, rate):
     np.testing.assert_allclose(y[3:], 1 - np.exp(-k / (rate * tau)), atol=1e-12)
 
 
+@pytest.mark.parametrize("phase", [0.0, 0.3, 1.0])
+def test_compiled_lag_is_lfilters_recursion_bit_for_bit(phase):
+    from scipy.signal import lfilter
+
+    # every column, the first input (at rest) and a given start, as the recursion lfilter runs
+    x = np.random.default_rng(2).normal(size=(3000, 4)).cumsum(axis=0)
+    for x0 in (None, 1.5):
+        a = np.exp(-1.0 / (200.0 * 0.03))
+        y0 = x[0] if x0 is None else np.full(4, x0)
+        u = (1.0 - phase) * x + phase * np.vstack([y0, x[:-1]]) if phase != 1.0 else np.vstack([y0, x[:-1]])
+        ref = lfilter([1.0 - a], [1.0, -a], u, axis=0, zi=(a * y0)[None, :])[0]
+        assert np.array_equal(fx.first_order_lag(x, 200.0, 0.03, x0, phase), ref)
+        assert np.array_equal(fx.first_order_lag(x[:, 2], 200.0, 0.03, x0, phase), ref[:, 2])
+
+
 def test_delay_integer_and_fractional():
     x = np.arange(10.0)
     np.testing.assert_allclose(fx.delayed(x, 10.0, 0.3)[3:], x[:-3])
     np.testing.assert_allclose(fx.delayed(x, 10.0, 0.25)[3:], x[3:] - 2.5)  # linear: x(t - 2.5 samples)
     assert fx.delayed(x, 10.0, 0.3)[0] == x[0]
+    assert np.all(fx.delayed(x, 10.0, 2.0) == x[0])  # delayed past the recording's end: the first value held
 
 
 @given(tau=st.floats(0.005, 0.5), phase=st.sampled_from([0.0, 1.0]), seed=st.integers(0, 1000))
@@ -169,6 +185,23 @@ def test_nonnegative_weights_recover_a_density():
     assert np.all(w >= 0)
     np.testing.assert_allclose(w, w_true, atol=0.02)
     assert c == pytest.approx(0.1, abs=0.01)
+
+
+def test_fit_from_normal_equations_is_fit_weights_on_the_union_of_rows():
+    from models.pi import SlopeRows, fit_weights, fit_weights_on, regressors, thresholds
+
+    rng = np.random.default_rng(8)
+    r = thresholds(12)
+    x = np.cumsum(rng.normal(0, 0.05, 3000))
+    x = 2 * (x - x.min()) / np.ptp(x) - 1
+    Y = regressors(r, x)
+    E = np.column_stack([np.sin(np.arange(len(x)) / 300.0)])
+    y = Y @ np.r_[0.6, np.full(12, 0.03)] + 0.2 * E[:, 0] + rng.normal(0, 1e-2, len(x))
+    a, b = slice(0, 1800), slice(1800, None)
+    got = fit_weights_on([(SlopeRows.of(Y[a]), y[a], E[a]), (SlopeRows.of(Y[b]), y[b], E[b])])
+    want = fit_weights(Y, y, E)
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12)
 
 
 def test_cross_validation_recovers_a_linear_law():

@@ -118,10 +118,14 @@ def delayed(x: np.ndarray, rate_hz: float, delay_s: float) -> np.ndarray:
     shift = delay_s * rate_hz
     m, frac = int(np.floor(shift)), shift - np.floor(shift)
     n = x.shape[0]
-    idx = np.arange(n) - m
-    i0 = np.clip(idx, 0, n - 1)
-    i1 = np.clip(idx - 1, 0, n - 1)
-    return (1.0 - frac) * x[i0] + frac * x[i1]
+
+    def back(k):
+        # x[max(i - k, 0)] for every row i, as a contiguous copy rather than a gather by index
+        # (the delay's screen runs this on every column of the design)
+        k = min(k, n)
+        return np.concatenate([np.repeat(x[:1], k, axis=0), x[:n - k]])
+
+    return (1.0 - frac) * back(m) + frac * back(m + 1)
 
 
 def advanced(x: np.ndarray, rate_hz: float, delay_s: float) -> np.ndarray:
