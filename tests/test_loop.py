@@ -714,6 +714,8 @@ def test_each_status_has_the_counts_a_recount_gives(cfg, model, monkeypatch):
     """The status reuses its faults' and alarms' counts until they change (Faults.changes, the alarms' change
     count): every status published carries exactly what a recount at that step gives, through faults, an
     alarm raised and cleared, and a stale gap."""
+    import msgspec
+
     import controller.loop as loop_mod
 
     made = {}
@@ -734,7 +736,7 @@ def test_each_status_has_the_counts_a_recount_gives(cfg, model, monkeypatch):
 
     class Watching(Dropout):
         def publish_status(self, t_s, status):
-            statuses.append(json.loads(json.dumps(status)))
+            statuses.append(msgspec.to_builtins(status))
             f, a = made["faults"], made["alarms"]
             recounts.append(json.loads(json.dumps({"faults": f.counts(), "alarms": a.active(),
                                                    "alarm_counts": a.counts()})))
@@ -767,3 +769,22 @@ def test_alarms_change_count_moves_whenever_an_alarm_is_raised_or_cleared():
         moved += now[0] != seen[0]
         seen = now
     assert moved >= 10
+
+
+def test_a_status_is_published_as_the_dict_it_replaces_and_reads_by_key():
+    """The status record (msgspec Struct) makes the very payload the dict of the same fields made, JSON or not
+    (numpy scalars take ``json``'s path), and reads by key as the dict did (the run's progress line)."""
+    import numpy as np
+
+    from controller.loop import Status
+    from controller.transport.payload import encode
+
+    fields = dict(state="running", controller="ff+kf", ref_lpm=40.0, flow_lpm=None, duty_pct=51.5,
+                  error_lpm=None, iae=0.25, steps=1200, overruns=3, lateness_us_max=12.5, compute_us_max=31.0,
+                  faults={"stale": 1}, alarms=["supply_low"], alarm_counts={"supply_low": 2})
+    st = Status(**fields)
+    assert encode(1.5, 7, st) == encode(1.5, 7, dict(fields))
+    assert json.loads(encode(1.5, 7, st))["value"] == fields
+    assert all(st[k] == v for k, v in fields.items())
+    numpy_st = Status(**{**fields, "duty_pct": np.float64(51.5), "iae": np.float64(0.25)})
+    assert json.loads(encode(1.5, 7, numpy_st))["value"] == fields

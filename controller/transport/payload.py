@@ -214,4 +214,11 @@ def encode(t_s: float, seq: int, value, /, **extra) -> bytes:
     try:
         return _ENCODER.encode(doc)
     except TypeError:
-        return json.dumps(doc).encode()
+        return json.dumps(doc, default=_builtins).encode()
+
+
+def _builtins(obj):
+    """What ``json`` cannot write itself: a msgspec Struct (a status) as its fields."""
+    if isinstance(obj, msgspec.Struct):
+        return msgspec.structs.asdict(obj)
+    raise TypeError(f"Object of type {type(obj).__name__} is not JSON serializable")

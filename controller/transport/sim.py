@@ -74,7 +74,7 @@ class SimTransport:
     def publish_error(self, t_s: float, error_lpm: float) -> None:
         """Nothing listens in-process: the loop records the error."""
 
-    def publish_status(self, t_s: float, status: dict) -> None:
+    def publish_status(self, t_s: float, status) -> None:
         """Nothing listens in-process."""
 
     def close(self) -> None:

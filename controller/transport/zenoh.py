@@ -387,7 +387,7 @@ class ZenohTransport:
     def publish_error(self, t_s: float, error_lpm: float) -> None:
         self.err.put(t_s, error_lpm)
 
-    def publish_status(self, t_s: float, status: dict) -> None:
+    def publish_status(self, t_s: float, status) -> None:
         self.status.put(t_s, status)
 
     def close(self) -> None:
@@ -417,7 +417,7 @@ class EmbeddedValve:
     def publish_error(self, t_s: float, error_lpm: float) -> None:
         self.zt.publish_error(t_s, error_lpm)
 
-    def publish_status(self, t_s: float, status: dict) -> None:
+    def publish_status(self, t_s: float, status) -> None:
         self.zt.publish_status(t_s, status)
 
     def poll_mode(self) -> tuple[str | None, int]:
