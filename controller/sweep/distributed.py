@@ -74,7 +74,7 @@ def _progress(total: int, desc: str):
 
 
 def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: str | None = None,
-               workers: int | None = None, desc: str = "sweep") -> list:
+               workers: int | None = None, desc: str = "sweep", during: Callable | None = None) -> list:
     """``[fn(c) for c in chunks]``, run in parallel, with a progress bar counting ``sizes``.
 
     Parameters
@@ -89,21 +89,25 @@ def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: 
         Dask scheduler address; a local process pool if absent.
     workers : int, optional
         Local pool size (default: one per core).
+    during : callable, optional
+        Called once in this process while the chunks run (after they are all submitted).
     """
+    during = during or (lambda: None)
     with _progress(sum(sizes), desc) as bar:
         if scheduler:
-            return _dask(fn, chunks, sizes, scheduler, bar)
+            return _dask(fn, chunks, sizes, scheduler, bar, during)
         n = workers or default_workers()
         if n <= 1 or len(chunks) <= 1:
+            during()
             out = []
             for c, s in zip(chunks, sizes):
                 out.append(fn(c))
                 bar.update(s)
             return out
-        return _pool(fn, chunks, sizes, n, bar)
+        return _pool(fn, chunks, sizes, n, bar, during)
 
 
-def _pool(fn, chunks, sizes, n, bar) -> list:
+def _pool(fn, chunks, sizes, n, bar, during) -> list:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -113,6 +117,7 @@ def _pool(fn, chunks, sizes, n, bar) -> list:
     with ProcessPoolExecutor(max_workers=min(n, len(chunks)), mp_context=ctx, initializer=die_with_parent,
                              initargs=(os.getpid(),)) as ex:
         futs = {ex.submit(fn, c): i for i, c in enumerate(chunks)}
+        during()
         for f in as_completed(futs):
             i = futs[f]
             out[i] = f.result()
@@ -120,7 +125,7 @@ def _pool(fn, chunks, sizes, n, bar) -> list:
     return out
 
 
-def _dask(fn, chunks, sizes, scheduler, bar) -> list:
+def _dask(fn, chunks, sizes, scheduler, bar, during) -> list:
     from distributed import Client, as_completed
 
     try:
@@ -130,6 +135,7 @@ def _dask(fn, chunks, sizes, scheduler, bar) -> list:
     try:
         futs = client.map(fn, list(chunks), pure=False)
         index = {f.key: i for i, f in enumerate(futs)}
+        during()
         out = [None] * len(chunks)
         for f in as_completed(futs):
             i = index[f.key]

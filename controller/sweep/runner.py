@@ -62,11 +62,15 @@ def structure(x):
 
 def simulate_chunk(c: Chunk) -> dict:
     """Figures of the chunk's candidates, arrays (C, V)."""
+    with one_blas_thread():
+        return _simulate(c)
+
+
+def _simulate(c: Chunk) -> dict:
     V = len(c.plants)
     params = simulate.stack_params([p for p in c.params for _ in range(V)])
-    with one_blas_thread():
-        r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, np.repeat(c.preview_steps, V))
-        return simulate.figures(r, V)
+    r = simulate.response(params, c.plants, c.ref_lpm, c.rate_hz, c.seed, np.repeat(c.preview_steps, V))
+    return simulate.figures(r, V)
 
 
 @dataclass
@@ -120,51 +124,129 @@ def build_many(b: Build) -> list:
         return [build_one(b.run, w, r, b.models) for w, r in b.rows]
 
 
-def chunks_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, scheduler: str | None = None,
-              workers: int | None = None):
-    """``(chunks, candidate indices per chunk)``: candidates built (in parallel), grouped by structure."""
+@dataclass(frozen=True)
+class Job:
+    """A block of candidates to build and simulate on every plant variant, picklable for a Dask worker."""
+
+    build: Build
+    plants: list
+    ref_lpm: np.ndarray
+    seed: int
+
+
+def run_job(j: Job) -> dict:
+    """Figures (C, V) of the job's candidates, in its order: each built by the run's builder where the
+    job runs, the built ones grouped by :func:`structure` and each group simulated as one batch."""
+    with one_blas_thread():
+        run = j.build.run
+        rate = run["loop"]["rate_hz"]
+        built = [build_one(run, w, r, j.build.models) for w, r in j.build.rows]
+        groups = {}
+        for i, (p, _) in enumerate(built):
+            groups.setdefault(structure(p), []).append(i)
+        out = {k: np.empty((len(built), len(j.plants))) for k in metrics.NAMES}
+        for idx in groups.values():
+            res = _simulate(Chunk([built[i][0] for i in idx], j.plants, j.ref_lpm, rate,
+                                  np.array([int(round(built[i][1] * rate)) for i in idx]), j.seed))
+            for k in metrics.NAMES:
+                out[k][idx] = res[k]
+        return out
+
+
+#: The jobs of the sweep under way, for the local pool's forked workers (they inherit them: no pickling).
+_JOBS: list = []
+
+
+def _run_local(i: int) -> dict:
+    return run_job(_JOBS[i])
+
+
+#: Relative cost of a candidate of each controller word (CPU seconds per candidate of the default sweep's
+#: jobs: pid 4.4-5.0 ms, ff+pid 5.6-12 ms (by model), ff+kf 11-14 ms, ff 13 ms), to start the costliest first.
+WORD_COST = {"pid": 0.4, "ff+pid": 0.8, "ff+kf": 1.0, "ff": 1.0}
+
+
+def jobs_of(s: sp.SweepSpec, plants: list, ref: np.ndarray, models: dict, workers: int | None = None):
+    """``(jobs, candidate indices per job)``: candidates of one controller word and model together (a
+    batch's candidates must share a structure: the job checks it again once built), costliest first."""
     run, cands = s.run, s.candidates
-    rate = run["loop"]["rate_hz"]
-    pairs = [(cands.controller[i], cands.row(i)) for i in range(len(cands))]
     n_workers = workers or default_workers()
-    n_blocks = max(1, min(len(pairs), 4 * n_workers))
-    bounds = np.linspace(0, len(pairs), n_blocks + 1).astype(int)
-    blocks = [Build(run, pairs[a:b], models) for a, b in zip(bounds[:-1], bounds[1:])]
-    built = [x for part in map_chunks(build_many, blocks, [len(b.rows) for b in blocks], scheduler, workers,
-                                      desc="build") for x in part]
     groups = {}
-    for i, (p, _) in enumerate(built):
-        groups.setdefault(structure(p), []).append(i)
+    for i in range(len(cands)):
+        word, row = cands.controller[i], cands.row(i)
+        groups.setdefault((word, run.resolve(sp.setting(run, row, "model"))), []).append(i)
     # at most chunk_loops loops a batch, and enough batches that the pool's workers finish together
     # (a word's loop costs up to 4x another's: few large batches leave one worker running alone)
-    per = max(1, min(s.chunk_loops // len(plants), math.ceil(len(built) / (CHUNKS_PER_WORKER * n_workers))))
-    parts = [idx[a:a + per] for idx in groups.values() for a in range(0, len(idx), per)]
-    parts.sort(key=len, reverse=True)  # largest first: the pool's workers finish together
-    chunks = [Chunk([built[i][0] for i in part], plants, ref, rate,
-                    np.array([int(round(built[i][1] * rate)) for i in part]), run[""]["seed"]) for part in parts]
-    return chunks, parts
+    per = max(1, min(s.chunk_loops // len(plants), math.ceil(len(cands) / (CHUNKS_PER_WORKER * n_workers))))
+    parts = [(WORD_COST.get(key[0], 1.0) * len(idx[a:a + per]), idx[a:a + per])
+             for key, idx in groups.items() for a in range(0, len(idx), per)]
+    parts.sort(key=lambda x: x[0], reverse=True)  # costliest first: the pool's workers finish together
+    parts = [p for _, p in parts]
+    jobs = [Job(Build(run, [(cands.controller[i], cands.row(i)) for i in part], models), plants, ref, run[""]["seed"])
+            for part in parts]
+    return jobs, parts
+
+
+_LOADED = False
+
+
+def load_kernels(s: sp.SweepSpec) -> None:
+    """The sweep's compiled kernels loaded from numba's cache into this process, and what building a candidate
+    imports, once: a 3-step closed loop of the default candidate on the run's valve (each kernel has one
+    signature, whatever the controller word). A local pool's workers, forked after, inherit them; else each
+    loaded the kernel itself (0.3 s of CPU each) inside the timed span."""
+    global _LOADED
+    if _LOADED:
+        return
+    from controller.config import controller_params
+    from controller.laws import control
+    from models.model import load_model
+    from plant_sim.plant import BatchPlant, load_plant
+
+    run = s.run
+    cfg = sp.apply(run, s.candidates.controller[0], s.candidates.row(0))
+    with one_blas_thread():
+        p = controller_params(cfg, cfg[""]["controller"], load_model(cfg.resolve(cfg[""]["model"])))
+    valve = load_plant(run.resolve(run[""]["plant_config"]), effects=run["effects"])
+    rate = run["loop"]["rate_hz"]
+    simulate.closed_loop(control.repeat(p, 2), BatchPlant([valve, valve], rate), np.full(3, 10.0), rate, 1)
+    _LOADED = True
 
 
 def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None = None) -> SweepResult:
     """Simulate every candidate on every variant, rank, and compute the top candidates' margins.
 
     :attr:`SweepResult.seconds` times the work itself: python-control (the margins) is imported
-    before the clock starts, as every ``*_s`` figure leaves imports out.
+    and, for a local pool, the compiled kernels are loaded from numba's cache (:func:`load_kernels`)
+    before the clock starts, as every ``*_s`` figure leaves imports and compilation out.
     """
+    global _JOBS
+    import multiprocessing as mp
+
     if s.margins_top:
         import control  # noqa: F401
+    local = not scheduler and "fork" in mp.get_all_start_methods()
+    if not scheduler:
+        load_kernels(s)
     t0 = time.perf_counter()
     plants = sp.plants(s.run, s.variants, s.path)
     ref = sp.reference(s.run, s.duration_s)
     models = load_models(s)
-    chunks, index = chunks_of(s, plants, ref, models, scheduler, workers)
-    results = map_chunks(simulate_chunk, chunks, [len(i) for i in index], scheduler, workers)
+    jobs, index = jobs_of(s, plants, ref, models, workers)
+    params = []
+    _JOBS = jobs if local else []
+    try:  # the parameter columns while the workers run
+        results = map_chunks(_run_local if local else run_job, range(len(jobs)) if local else jobs,
+                             [len(i) for i in index], scheduler, workers,
+                             during=lambda: params.append(_parameter_columns(s)))
+    finally:
+        _JOBS = []
     n, V = len(s.candidates), len(plants)
     fig = {k: np.full((n, V), np.nan) for k in metrics.NAMES}
     for idx, res in zip(index, results):
         for k in metrics.NAMES:
             fig[k][idx] = res[k]
-    table, columns = _parameter_columns(s)
+    table, columns = params[0]
     for k in metrics.NAMES:
         table[k] = fig[k][:, 0]
         columns.append(k)
