@@ -74,7 +74,8 @@ def _progress(total: int, desc: str):
 
 
 def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: str | None = None,
-               workers: int | None = None, desc: str = "sweep", during: Callable | None = None) -> list:
+               workers: int | None = None, desc: str = "sweep", during: Callable | None = None,
+               pool: "LocalPool | None" = None) -> list:
     """``[fn(c) for c in chunks]``, run in parallel, with a progress bar counting ``sizes``.
 
     Parameters
@@ -91,6 +92,8 @@ def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: 
         Local pool size (default: one per core).
     during : callable, optional
         Called once in this process while the chunks run (after they are all submitted).
+    pool : LocalPool, optional
+        A local pool kept for several calls (forked at its first); else one for this call.
     """
     during = during or (lambda: None)
     with _progress(sum(sizes), desc) as bar:
@@ -104,24 +107,49 @@ def map_chunks(fn: Callable, chunks: Sequence, sizes: Sequence[int], scheduler: 
                 out.append(fn(c))
                 bar.update(s)
             return out
-        return _pool(fn, chunks, sizes, n, bar, during)
+        if pool is not None:
+            return _pool(fn, chunks, sizes, bar, during, pool.executor(n, len(chunks)))
+        with LocalPool() as own:
+            return _pool(fn, chunks, sizes, bar, during, own.executor(n, len(chunks)))
 
 
-def _pool(fn, chunks, sizes, n, bar, during) -> list:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+class LocalPool:
+    """A local process pool for several :func:`map_chunks` calls, forked at the first (its workers inherit
+    this process's state of that moment: imported modules, numba's loaded kernels, module globals), shut
+    down on leaving the ``with`` block."""
 
-    # fork: workers inherit the imported modules and numba's compiled kernels
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+    def __init__(self):
+        self._ex = None
+
+    def executor(self, n: int, n_chunks: int):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        if self._ex is None:
+            ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+            self._ex = ProcessPoolExecutor(max_workers=min(n, n_chunks), mp_context=ctx,
+                                           initializer=die_with_parent, initargs=(os.getpid(),))
+        return self._ex
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._ex is not None:
+            self._ex.shutdown(wait=True, cancel_futures=True)
+            self._ex = None
+
+
+def _pool(fn, chunks, sizes, bar, during, ex) -> list:
+    from concurrent.futures import as_completed
+
     out = [None] * len(chunks)
-    with ProcessPoolExecutor(max_workers=min(n, len(chunks)), mp_context=ctx, initializer=die_with_parent,
-                             initargs=(os.getpid(),)) as ex:
-        futs = {ex.submit(fn, c): i for i, c in enumerate(chunks)}
-        during()
-        for f in as_completed(futs):
-            i = futs[f]
-            out[i] = f.result()
-            bar.update(sizes[i])
+    futs = {ex.submit(fn, c): i for i, c in enumerate(chunks)}
+    during()
+    for f in as_completed(futs):
+        i = futs[f]
+        out[i] = f.result()
+        bar.update(sizes[i])
     return out
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import metrics, simulate, spec as sp
-from .distributed import default_workers, map_chunks
+from .distributed import LocalPool, default_workers, map_chunks
 
 MARGIN_NAMES = ("gain_margin_db", "phase_margin_deg")
 #: Batches per pool worker at least (when ``chunk_loops`` allows): the last ones are small.
@@ -216,11 +216,15 @@ def load_kernels(s: sp.SweepSpec) -> None:
 def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None = None) -> SweepResult:
     """Simulate every candidate on every variant, rank, and compute the top candidates' margins.
 
+    A local pool is forked once, at the start: its workers build and simulate the jobs (which they
+    inherit), then compute the margins, while this process writes the parameter columns and
+    linearizes the valve.
+
     :attr:`SweepResult.seconds` times the work itself: python-control (the margins) is imported
     and, for a local pool, the compiled kernels are loaded from numba's cache (:func:`load_kernels`)
     before the clock starts, as every ``*_s`` figure leaves imports and compilation out.
     """
-    global _JOBS
+    global _JOBS, _SWEEP
     import multiprocessing as mp
 
     if s.margins_top:
@@ -233,35 +237,44 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
     ref = sp.reference(s.run, s.duration_s)
     models = load_models(s)
     jobs, index = jobs_of(s, plants, ref, models, workers)
-    params = []
-    _JOBS = jobs if local else []
-    try:  # the parameter columns while the workers run
-        results = map_chunks(_run_local if local else run_job, range(len(jobs)) if local else jobs,
-                             [len(i) for i in index], scheduler, workers,
-                             during=lambda: params.append(_parameter_columns(s)))
+    params, op = [], []
+
+    def during():  # in this process while the workers run
+        params.append(_parameter_columns(s))
+        if s.margins_top:
+            op.append(_operating_point(s, plants[0], ref))
+
+    _JOBS, _SWEEP = (jobs, (s, plants[0], ref, models)) if local else ([], None)
+    try:
+        with LocalPool() as pool:
+            results = map_chunks(_run_local if local else run_job, range(len(jobs)) if local else jobs,
+                                 [len(i) for i in index], scheduler, workers, during=during, pool=pool)
+            n, V = len(s.candidates), len(plants)
+            fig = {k: np.full((n, V), np.nan) for k in metrics.NAMES}
+            for idx, res in zip(index, results):
+                for k in metrics.NAMES:
+                    fig[k][idx] = res[k]
+            table, columns = params[0]
+            for k in metrics.NAMES:
+                table[k] = fig[k][:, 0]
+                columns.append(k)
+            if V > 1:
+                for k, v in metrics.worst_case(fig).items():
+                    table[f"worst_{k}"] = v
+                    columns.append(f"worst_{k}")
+            obj = np.asarray(table[s.objective], dtype=np.float64)
+            best = int(np.nanargmin(np.where(np.isfinite(obj), obj, np.nan))) if np.isfinite(obj).any() else 0
+            if s.margins_top:
+                top = [int(i) for i in np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]]
+                table.update(_top_margins(s, models, top, op[0], workers, local, pool))
+                columns += list(MARGIN_NAMES)
     finally:
-        _JOBS = []
-    n, V = len(s.candidates), len(plants)
-    fig = {k: np.full((n, V), np.nan) for k in metrics.NAMES}
-    for idx, res in zip(index, results):
-        for k in metrics.NAMES:
-            fig[k][idx] = res[k]
-    table, columns = params[0]
-    for k in metrics.NAMES:
-        table[k] = fig[k][:, 0]
-        columns.append(k)
-    if V > 1:
-        for k, v in metrics.worst_case(fig).items():
-            table[f"worst_{k}"] = v
-            columns.append(f"worst_{k}")
-    obj = np.asarray(table[s.objective], dtype=np.float64)
-    best = int(np.nanargmin(np.where(np.isfinite(obj), obj, np.nan))) if np.isfinite(obj).any() else 0
-    if s.margins_top:
-        with one_blas_thread():  # a margin costs milliseconds: a pool would cost more than it saves
-            top = np.argsort(np.where(np.isfinite(obj), obj, np.inf))[:s.margins_top]
-            table.update(_margins(s, plants[0], ref, models, top))
-        columns += list(MARGIN_NAMES)
+        _JOBS, _SWEEP = [], None
     return SweepResult(s, table, columns, time.perf_counter() - t0, best)
+
+
+#: The sweep under way ``(spec, nominal plant, reference, models)``, for the local pool's margins.
+_SWEEP = None
 
 
 def _parameter_columns(s: sp.SweepSpec):
@@ -274,12 +287,68 @@ def _parameter_columns(s: sp.SweepSpec):
     return table, ["controller", *names]
 
 
-def _margins(s: sp.SweepSpec, plant, ref, models: dict, top) -> dict:
+def _margin_flow(s: sp.SweepSpec, ref) -> float:
+    return s.margins_flow_lpm if s.margins_flow_lpm is not None else float(np.max(ref))
+
+
+def _operating_point(s: sp.SweepSpec, plant, ref):
+    from . import margins as mg
+
+    return mg.operating_point(plant, _margin_flow(s, ref), s.run["loop"]["rate_hz"])
+
+
+def _model_sources(s: sp.SweepSpec, top) -> dict:
+    """Model path -> the first ``ff+kf`` candidate of ``top`` on it: whose forward model's slope every
+    ``ff+kf`` candidate on that path uses (:func:`controller.sweep.margins.model_gain`)."""
+    run, out = s.run, {}
+    for i in top:
+        if s.candidates.controller[i] == "ff+kf":
+            out.setdefault(run.resolve(sp.setting(run, s.candidates.row(i), "model")), i)
+    return out
+
+
+def _top_margins(s: sp.SweepSpec, models: dict, top: list, op, workers, local: bool, pool) -> dict:
+    """Margins columns (None but for ``top``): on the local pool's workers, split by model path, else here."""
+    sources = _model_sources(s, top)
+    n = workers or default_workers()
+    if not local or n <= 1 or len(top) <= 1:
+        with one_blas_thread():  # a margin costs milliseconds
+            return _margins(s, models, top, op, sources)
+    # the candidates of one model path together (its slope is computed once), costliest groups first
+    run, groups = s.run, {}
+    for i in top:
+        word = s.candidates.controller[i]
+        key = run.resolve(sp.setting(run, s.candidates.row(i), "model")) if word == "ff+kf" else i
+        groups.setdefault(key, []).append(i)
+    parts = [[] for _ in range(min(n, len(top)))]
+    cost = [0.0] * len(parts)
+    for g in sorted(groups.values(), key=lambda g: -(len(g) + (1.2 if s.candidates.controller[g[0]] == "ff+kf" else 0))):
+        w = int(np.argmin(cost))
+        parts[w] += g
+        cost[w] += len(g) + (1.2 if s.candidates.controller[g[0]] == "ff+kf" else 0)
+    parts = [p for p in parts if p]
+    out = {k: [None] * len(s.candidates) for k in MARGIN_NAMES}
+    for res in map_chunks(_margins_local, [(p, op, sources) for p in parts], [len(p) for p in parts], None,
+                          workers, desc="margins", pool=pool):
+        for k in MARGIN_NAMES:
+            for i, v in res[k].items():
+                out[k][i] = v
+    return out
+
+
+def _margins_local(part) -> dict:
+    top, op, sources = part
+    s, _, _, models = _SWEEP
+    with one_blas_thread():
+        full = _margins(s, models, top, op, sources)
+    return {k: {i: full[k][i] for i in top} for k in MARGIN_NAMES}
+
+
+def _margins(s: sp.SweepSpec, models: dict, top, op, sources: dict) -> dict:
+    """Margins of the candidates ``top``; an ``ff+kf`` one with the model slope of ``sources[its path]``."""
     from . import margins as mg
 
     run = s.run
-    flow = s.margins_flow_lpm if s.margins_flow_lpm is not None else float(np.max(ref))
-    op = mg.operating_point(plant, flow, run["loop"]["rate_hz"])
     out = {k: [None] * len(s.candidates) for k in MARGIN_NAMES}
     k_model = {}
     for i in top:
@@ -287,8 +356,10 @@ def _margins(s: sp.SweepSpec, plant, ref, models: dict, top) -> dict:
         path = run.resolve(sp.setting(run, row, "model"))
         p, _ = build_one(run, word, row, models)
         if word == "ff+kf" and path not in k_model:
-            k_model[path] = mg.model_gain(p.forward, 0, flow)
-        m = mg.loop_margins(p, 0, op, k_model.get(path))
+            j = sources[path]
+            pj = p if j == i else build_one(run, s.candidates.controller[j], s.candidates.row(j), models)[0]
+            k_model[path] = mg.model_gain(pj.forward, 0, op.flow_lpm)
+        m = mg.loop_margins(p, 0, op, k_model.get(path) if word == "ff+kf" else None)
         out["gain_margin_db"][i], out["phase_margin_deg"][i] = m.gain_margin_db, m.phase_margin_deg
     return out
 
