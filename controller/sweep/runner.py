@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import time
 from dataclasses import dataclass
 
@@ -138,19 +139,23 @@ def run_job(j: Job) -> dict:
     """Figures (C, V) of the job's candidates, in its order: each built by the run's builder where the
     job runs, the built ones grouped by :func:`structure` and each group simulated as one batch."""
     with one_blas_thread():
-        run = j.build.run
-        rate = run["loop"]["rate_hz"]
-        built = [build_one(run, w, r, j.build.models) for w, r in j.build.rows]
-        groups = {}
-        for i, (p, _) in enumerate(built):
-            groups.setdefault(structure(p), []).append(i)
-        out = {k: np.empty((len(built), len(j.plants))) for k in metrics.NAMES}
-        for idx in groups.values():
-            res = _simulate(Chunk([built[i][0] for i in idx], j.plants, j.ref_lpm, rate,
-                                  np.array([int(round(built[i][1] * rate)) for i in idx]), j.seed))
-            for k in metrics.NAMES:
-                out[k][idx] = res[k]
-        return out
+        return _job(j)
+
+
+def _job(j: Job) -> dict:
+    run = j.build.run
+    rate = run["loop"]["rate_hz"]
+    built = [build_one(run, w, r, j.build.models) for w, r in j.build.rows]
+    groups = {}
+    for i, (p, _) in enumerate(built):
+        groups.setdefault(structure(p), []).append(i)
+    out = {k: np.empty((len(built), len(j.plants))) for k in metrics.NAMES}
+    for idx in groups.values():
+        res = _simulate(Chunk([built[i][0] for i in idx], j.plants, j.ref_lpm, rate,
+                              np.array([int(round(built[i][1] * rate)) for i in idx]), j.seed))
+        for k in metrics.NAMES:
+            out[k][idx] = res[k]
+    return out
 
 
 #: The jobs of the sweep under way, for the local pool's forked workers (they inherit them: no pickling).
@@ -158,7 +163,28 @@ _JOBS: list = []
 
 
 def _run_local(i: int) -> dict:
-    return run_job(_JOBS[i])
+    if not _worker_blas():
+        return run_job(_JOBS[i])
+    return _job(_JOBS[i])
+
+
+_BLAS_SET = False
+#: The process that runs the sweep (set before its pool forks).
+_PARENT = None
+
+
+def _worker_blas() -> bool:
+    """In a local pool's worker, BLAS on one thread, set once for its life (:func:`one_blas_thread`
+    costs about 5 ms a call; the worker is ours alone, nothing to restore); False in the sweep's process."""
+    global _BLAS_SET
+    if os.getpid() == _PARENT:
+        return False
+    if not _BLAS_SET:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1, "blas")
+        _BLAS_SET = True
+    return True
 
 
 #: Relative cost of a candidate of each controller word (CPU seconds per candidate of the default sweep's
@@ -224,7 +250,7 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
     and, for a local pool, the compiled kernels are loaded from numba's cache (:func:`load_kernels`)
     before the clock starts, as every ``*_s`` figure leaves imports and compilation out.
     """
-    global _JOBS, _SWEEP
+    global _JOBS, _SWEEP, _PARENT
     import multiprocessing as mp
 
     if s.margins_top:
@@ -245,6 +271,7 @@ def run_sweep(s: sp.SweepSpec, scheduler: str | None = None, workers: int | None
             op.append(_operating_point(s, plants[0], ref))
 
     _JOBS, _SWEEP = (jobs, (s, plants[0], ref, models)) if local else ([], None)
+    _PARENT = os.getpid()
     try:
         with LocalPool() as pool:
             results = map_chunks(_run_local if local else run_job, range(len(jobs)) if local else jobs,
@@ -339,8 +366,11 @@ def _top_margins(s: sp.SweepSpec, models: dict, top: list, op, workers, local: b
 def _margins_local(part) -> dict:
     top, op, sources = part
     s, _, _, models = _SWEEP
-    with one_blas_thread():
+    if _worker_blas():
         full = _margins(s, models, top, op, sources)
+    else:
+        with one_blas_thread():
+            full = _margins(s, models, top, op, sources)
     return {k: {i: full[k][i] for i in top} for k in MARGIN_NAMES}
 
 
