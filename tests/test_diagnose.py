@@ -259,6 +259,39 @@ def test_gross_asymmetry_ten_times_the_loop():
     assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(10.0, rel=0.3)
 
 
+def test_backward_check_drops_a_word_a_later_one_explains():
+    # a 40 ms lag on steps. Say a 20 ms delay was named first (it took up part of the lag) and the lag
+    # after it: with the lag in place the delay no longer earns its margin, so the backward check on
+    # the final chain drops it (traced with its reason) and keeps the lag, which earns its place
+    from models.diagnose import detectors as D
+    from models.diagnose.calibrate import load_margins
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+    from models.diagnose.trace import DROPPED, explain
+
+    rec = _plant_recording({"valve_dynamics": 0.04}, "steps", 60.0)
+    sig = work_signals(rec, None)
+    folds = make_folds(sig.t_s)
+    margins = load_margins()
+    sel = D.Selection()
+    sel.reference, _ = D.reference(fit_baseline(sig, folds), sig, folds)
+    sel.chain = {"transport_delay": {"delay_s": 0.02}, "valve_dynamics": {"tau_s": 0.04, "phase": 1.0}}
+    sel.params = {w: dict(p) for w, p in sel.chain.items()}
+    none = np.zeros(folds.k)
+    sel.steps = [D.Candidate(w, 0.5, folds.k, dict(p), none, none) for w, p in sel.chain.items()]
+
+    assert D.earns("valve_dynamics", sel.chain, sel.reference, sig, folds, margins)[1] is None
+    assert D._backward(sel, sig, folds, margins, rnd=2) == "transport_delay"
+    assert list(sel.chain) == ["valve_dynamics"] and [s.word for s in sel.steps] == ["valve_dynamics"]
+    assert set(sel.params) == {"valve_dynamics"}
+    last = sel.trace[-1]
+    assert (last.word, last.outcome, last.round) == ("transport_delay", DROPPED, 2)
+    assert "valve_dynamics in place" in last.why and "backward check" in explain(last)
+    # the lag left alone earns its place against the baseline: nothing more is dropped
+    assert D._backward(sel, sig, folds, margins, rnd=3) is None
+
+
 def test_closed_loop_run_is_diagnosed_against_its_feedforward_model():
     # a closed-loop run (ff+kf on a breath profile, 90 s at 200 Hz) of a valve with a 50 ms lag the model
     # leaves out, with the columns of valvectl run --record, held against the feedforward's model file

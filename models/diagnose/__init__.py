@@ -36,7 +36,7 @@ from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
 from .design import build, clip, fit_baseline, fit_final, fixed_base, unbend
-from .detectors import AMBIGUOUS, Selection, select_effects
+from .detectors import AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, follows, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
 from .signals import Signals, noise_lpm, raw_signals, running_rows, work_signals
@@ -137,12 +137,6 @@ class Diagnosis:
                 "model": self.model}
 
 
-#: A finding's holdout residual must follow its correction: the least-squares slope of the
-#: residual before it on the correction at least this (0.5: the correction is at most twice
-#: what it explains) ...
-MIN_SLOPE = 0.5
-#: ... and their correlation at least this.
-MIN_CORRELATION = 0.1
 #: An effect the excitation shows by less than this fraction of the noise RMS (at a plausible size)
 #: is reported as not identifiable on it.
 VISIBLE = 0.5
@@ -150,19 +144,6 @@ VISIBLE = 0.5
 
 def _rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e)))
-
-
-def follows(resid: np.ndarray, delta: np.ndarray) -> tuple[float, float]:
-    """Slope and correlation of ``resid`` regressed on ``delta``, both through the origin.
-
-    Through the origin, because a correction is a change of the prediction, not a shape up to a
-    constant: a sensor offset's constant correction follows a residual that has its mean.
-    """
-    dd, rr = float(delta @ delta), float(resid @ resid)
-    if dd <= 0 or rr <= 0:
-        return 0.0, 0.0
-    dr = float(delta @ resid)
-    return dr / dd, dr / np.sqrt(dd * rr)
 
 
 def diagnose_response(rec: Recording, model: FittedModel | None = None, margins: Margins | None = None,

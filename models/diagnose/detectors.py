@@ -38,7 +38,7 @@ from .calibrate import Margins
 from .design import Base, CVResult, Design, build, cross_validate, fit_final, solve, unbend
 from .folds import Folds
 from .signals import Signals, noise_lpm
-from .trace import ALTERNATIVE, BELOW_MARGIN, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
+from .trace import ALTERNATIVE, BELOW_MARGIN, DROPPED, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
 from .words import DYNAMIC, VOCABULARY, WORDS, Word
 
 #: Most effects named in one recording.
@@ -75,6 +75,25 @@ STATIC_LEADS = 5
 #: Training rows the PI is refitted on at each grid point of a joint screen (a regular subsample
 #: beyond this; 51 weights are well placed by far fewer, and the refit is the screen's cost).
 SCREEN_ROWS = 30000
+#: A correction must follow the residual it is held against: the least-squares slope of the
+#: residual before it on the correction at least this (0.5: the correction is at most twice
+#: what it explains) ...
+MIN_SLOPE = 0.5
+#: ... and their correlation at least this.
+MIN_CORRELATION = 0.1
+
+
+def follows(resid: np.ndarray, delta: np.ndarray) -> tuple[float, float]:
+    """Slope and correlation of ``resid`` regressed on ``delta``, both through the origin.
+
+    Through the origin, because a correction is a change of the prediction, not a shape up to a
+    constant: a sensor offset's constant correction follows a residual that has its mean.
+    """
+    dd, rr = float(delta @ delta), float(resid @ resid)
+    if dd <= 0 or rr <= 0:
+        return 0.0, 0.0
+    dr = float(delta @ resid)
+    return dr / dd, dr / np.sqrt(dd * rr)
 
 
 def grid_points(word: Word, sig: Signals, base: Base) -> list[dict]:
@@ -445,7 +464,14 @@ def _decision(c: Candidate, rnd: int, need: float, margins: Margins, outcome: st
 
 
 def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=None) -> Selection:
-    """Greedy forward selection of effects by blocked cross-validation.
+    """Greedy forward selection of effects by blocked cross-validation, then the backward check.
+
+    Once the forward search has named its words and refined them with the whole chain
+    (:func:`_backfit`), each named word must still earn its margin with all the others in place
+    (:func:`_backward`): a word named early can have taken up the residual of a larger one the
+    recording hid until later (a creep reads a warming coil's drift as long as a clip hides the
+    heating's law). A word that no longer earns it is dropped, and the forward search resumes
+    without it, so that a word refused while it was in place is tried again.
 
     Parameters
     ----------
@@ -467,7 +493,26 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
     cur, before = reference(base, sig, folds)
     sel.reference = cur
     noise = noise_lpm(sig.flow_lpm)
-    rnd = 0
+    rnd, dropped = 0, set()
+    while True:
+        rnd = _forward(sel, words, cur, before, sig, folds, margins, noise, rnd, progress)
+        _backfit(sel, sig, folds)
+        gone = _backward(sel, sig, folds, margins, rnd)
+        if gone is None:
+            return sel
+        # the spurious word never comes back; the others are tested again on the chain without it
+        dropped.add(gone)
+        rnd += 1
+        words = [w for w in WORDS if w not in sel.not_identifiable and w not in sel.chain and w not in dropped]
+        cur = unbend(sel.reference, sig, sel.chain, folds.train)
+        before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
+
+
+def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Signals, folds: Folds,
+             margins: Margins, noise: float, rnd: int, progress=None) -> int:
+    """Add to ``sel`` the strongest acceptable of ``words`` on top of its chain, round after round,
+    until none passes (``cur``, ``before``: the chain's base and its cross-validated errors);
+    returns the next round's number."""
     retried = set()  # words refused once, tried again after the next word named
     while words and len(sel.chain) < MAX_EFFECTS:
         cands = {}
@@ -492,9 +537,9 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
                                        f"{c.word} explains more of the same residual (held-out gain "
                                        f"{100 * c.gain:.1f} % against {100 * a.gain:.1f} %) and this recording "
                                        f"cannot show {c.word}'s law"))
-            break
+            return rnd + 1
         if accepted is None:
-            break
+            return rnd + 1
         c, sel.chain, phys = accepted
         prev = cur
         # the PI's weights refitted under the named effects, so the next tests start from its best
@@ -511,22 +556,89 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         retried |= refused_words
         before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
         rnd += 1
-    _backfit(sel, sig, folds)
-    return sel
+    return rnd
 
 
-def _backfit(sel: Selection, sig: Signals, folds: Folds) -> None:
+def held_out_prediction(d: Design, y: np.ndarray, folds: Folds) -> np.ndarray:
+    """Each cross-validation fold's rows (L/min) predicted by the fit on the other folds' training
+    rows; NaN on the holdout."""
+    pred = np.full(len(y), np.nan)
+    for k in range(folds.k):
+        rows = folds.fold == k
+        pred[rows] = d.predict(fit_final(d, y, folds.train & ~rows))[rows]
+    return pred
+
+
+def earns(word: str, chain: dict, root: Base, sig: Signals, folds: Folds, margins: Margins) -> tuple:
+    """Whether the named ``word`` still earns its place in ``chain`` with every other word in place:
+    ``(candidate, why)``, ``why`` the reason it does not, or ``None``.
+
+    Both models are the chain as it stands (each word's parameters refined with the whole chain),
+    with and without ``word``, the PI refitted under each (from ``root``). The word must lower the
+    held-out error by more than its calibrated margin in a fold majority, and the held-out residual
+    of the chain without it must follow its correction (:data:`MIN_SLOPE`, :data:`MIN_CORRELATION`).
+    """
+    y = sig.flow_lpm
+    others = {w: p for w, p in chain.items() if w != word}
+    b0, b1 = unbend(root, sig, others, folds.train), unbend(root, sig, chain, folds.train)
+    d0, d1 = build(b0, sig, others), build(b1, sig, chain)
+    w = VOCABULARY[word]
+    c = _candidate(word, chain[word], cross_validate(d1, y, folds), cross_validate(d0, y, folds), b1,
+                   "exact" if w.is_exact(chain[word]) else "linearized")
+    need = margins.gain[word]
+    if not (c.gain > need and c.majority(margins.min_wins)):
+        return c, (f"with {', '.join(others)} in place its held-out error changes by {-100 * c.gain:+.2f} % "
+                   f"(needs below -{100 * need:.2f} %), lower in {c.wins}/{len(c.test_after)} folds")
+    p0, p1 = held_out_prediction(d0, y, folds), held_out_prediction(d1, y, folds)
+    rows = folds.fold >= 0
+    slope, corr = follows((y - p0)[rows], (p1 - p0)[rows])
+    if slope < MIN_SLOPE or corr < MIN_CORRELATION:
+        return c, (f"with {', '.join(others)} in place the held-out residual does not follow its correction "
+                   f"(slope {slope:.3g}, needs {MIN_SLOPE}; correlation {corr:.3g}, needs {MIN_CORRELATION})")
+    return c, None
+
+
+def _backward(sel: Selection, sig: Signals, folds: Folds, margins: Margins, rnd: int) -> str | None:
+    """The backward check on the final chain of ``sel``: every named word tested with all the others
+    in place (:func:`earns`); of those that no longer earn their place, the one that gains least
+    is dropped (from ``sel``, traced as :data:`DROPPED`), the others' exact laws refined again
+    without it and the chain's PI refitted. Returns the dropped word, or ``None``.
+
+    One at a time, because a word dropped changes what each other explains.
+    """
+    if len(sel.chain) < 2:
+        return None
+    failing = []
+    for step in sel.steps:
+        c, why = earns(step.word, sel.chain, sel.reference, sig, folds, margins)
+        if why:
+            failing.append((c, why))
+    if not failing:
+        return None
+    c, why = min(failing, key=lambda cw: cw[0].gain)
+    sel.trace.append(_decision(c, rnd, margins.gain[c.word], margins, DROPPED, why))
+    sel.steps = [s for s in sel.steps if s.word != c.word]
+    sel.chain = {w: p for w, p in sel.chain.items() if w != c.word}
+    del sel.params[c.word]
+    sel.alternatives.pop(c.word, None)
+    _backfit(sel, sig, folds, dropped=True)
+    return c.word
+
+
+def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) -> None:
     """Refine each named exact law once more with every other named word in place (in ``sel``).
 
     A word named first is refined before the others are known, and its parameters absorb part
     of them (a coil heating found before an asymmetry takes up some of the loop's widening):
     one round of refinement with the whole chain puts each back on its own physics. A refined
     law is kept only where it lowers the training error and stays physical; the PI of every step
-    is then refitted under the chain as it now is.
+    is then refitted under the chain as it now is. ``dropped``: a word has just left the chain,
+    so a single word left is refined too (without the one it shared the residual with), and the
+    steps' PIs are refitted whatever changed.
     """
-    if len(sel.chain) < 2 or not sel.reference.refit:
+    if len(sel.chain) < (1 if dropped else 2) or not sel.reference.refit:
         return
-    changed = False
+    changed = dropped
     for step in sel.steps:
         w = VOCABULARY[step.word]
         params = sel.chain[step.word]

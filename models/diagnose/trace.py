@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 #: Outcomes of a decision.
-NAMED, ALTERNATIVE, BELOW_MARGIN, NOT_PHYSICAL, UNSUPPORTED, UNCONFIRMED, MASKED = (
-    "named", "alternative", "below margin", "not physical", "unsupported", "unconfirmed", "masked")
+NAMED, ALTERNATIVE, BELOW_MARGIN, NOT_PHYSICAL, UNSUPPORTED, UNCONFIRMED, MASKED, DROPPED = (
+    "named", "alternative", "below margin", "not physical", "unsupported", "unconfirmed", "masked", "dropped")
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,8 @@ class Decision:
         ``"exact"`` (the nonlinear law, refined) or ``"linearized"`` (the first-order columns).
     outcome : str
         One of :data:`NAMED`, :data:`ALTERNATIVE`, :data:`BELOW_MARGIN`, :data:`NOT_PHYSICAL`,
-        :data:`UNSUPPORTED`, :data:`UNCONFIRMED`, :data:`MASKED`.
+        :data:`UNSUPPORTED`, :data:`UNCONFIRMED`, :data:`MASKED`, :data:`DROPPED` (named, then no
+        longer earning its place once the words named after it are in: the backward check).
     why : str
         The detail of a refusal (parameters out of range, missing rows, holdout figures), or "".
     """
@@ -68,6 +69,8 @@ def explain(d: Decision) -> str:
         return f"fits better but the recording does not show its law: {d.why}"
     if d.outcome == MASKED:
         return f"fits, but not asserted: {d.why}"
+    if d.outcome == DROPPED:
+        return f"named, then dropped by the backward check on the final chain: {d.why}; not asserted"
     if d.outcome == UNCONFIRMED:
         return f"passed the cross-validation but not the holdout: {d.why}; not asserted"
     return test
