@@ -292,6 +292,31 @@ def test_backward_check_drops_a_word_a_later_one_explains():
     assert D._backward(sel, sig, folds, margins, rnd=3) is None
 
 
+def test_whole_chain_refines_each_word_and_reports_it_from_the_chain():
+    # a 40 ms lag and a wandering supply (recorded), as if each had been named with the other's residual
+    # still in it: a lag read as 25 ms, a stale exponent. Refined with the whole chain, the lag's time
+    # constant comes back to 40 ms and the supply's exponent (a linear coefficient) is reported from
+    # the whole chain's fit: choked flow
+    from models.diagnose import detectors as D
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+
+    rec = _plant_recording({"valve_dynamics": 0.04, "supply_pressure": 0.3}, "steps", 120.0)
+    sig = work_signals(rec, None)
+    folds = make_folds(sig.t_s)
+    sel = D.Selection()
+    sel.reference, _ = D.reference(fit_baseline(sig, folds), sig, folds)
+    sel.chain = {"valve_dynamics": {"tau_s": 0.025, "phase": 1.0}, "supply_pressure": {}}
+    sel.params = {"valve_dynamics": {"tau_s": 0.025, "phase": 1.0}, "supply_pressure": {"exponent": 0.0}}
+    none = np.zeros(folds.k)
+    sel.steps = [D.Candidate(w, 0.5, folds.k, dict(p), none, none, base=sel.reference) for w, p in sel.chain.items()]
+    D._backfit(sel, sig, folds)
+    assert sel.chain["valve_dynamics"]["tau_s"] == pytest.approx(0.04, rel=0.15)
+    assert sel.params["valve_dynamics"]["tau_s"] == sel.chain["valve_dynamics"]["tau_s"]
+    assert sel.params["supply_pressure"]["exponent"] == pytest.approx(1.0, rel=0.3)
+
+
 def test_closed_loop_run_is_diagnosed_against_its_feedforward_model():
     # a closed-loop run (ff+kf on a breath profile, 90 s at 200 Hz) of a valve with a 50 ms lag the model
     # leaves out, with the columns of valvectl run --record, held against the feedforward's model file

@@ -14,7 +14,9 @@ follow DESIGN.md, Diagnosis:
    (:mod:`.calibrate`).
 4. *Model*: named effects are added greedily, all coefficients refitted (:mod:`.design`),
    each word's exact law refined by bounded nonlinear least squares, parameters
-   reported in physical units with a plausibility check.
+   reported in physical units with a plausibility check; the final chain is refined
+   as a whole, and a word that no longer earns its margin with all the others in
+   place is dropped (the backward check).
 5. *Confirm*: on the final holdout (rows never used to fit anything) each
    finding must lower the RMSE, and the residual it explains must follow its
    correction (slope and correlation of the residual against the correction).

@@ -23,8 +23,11 @@ recordings) in a majority of folds, its parameters are physically plausible
 and resolved, and the recording has the rows its law needs (a dead zone
 needs rows where the flow really stops). Words are added greedily, strongest
 first, each on top of those already named; every step refits all linear
-coefficients. Every test and decision is recorded in a trace
-(:mod:`models.diagnose.trace`).
+coefficients. The final chain is then refined as a whole and checked backwards:
+each named word must still earn its margin with all the others in place, and
+one that no longer does is dropped (a word named early can have taken up the
+residual of one the recording hid until later). Every test and decision is
+recorded in a trace (:mod:`models.diagnose.trace`).
 """
 from __future__ import annotations
 
@@ -626,23 +629,29 @@ def _backward(sel: Selection, sig: Signals, folds: Folds, margins: Margins, rnd:
 
 
 def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) -> None:
-    """Refine each named exact law once more with every other named word in place (in ``sel``).
+    """Refine each named law's nonlinear parameters once more with every other named word in place
+    (in ``sel``), and report every word's parameters from the chain as it then is.
 
     A word named first is refined before the others are known, and its parameters absorb part
-    of them (a coil heating found before an asymmetry takes up some of the loop's widening):
-    one round of refinement with the whole chain puts each back on its own physics. A refined
-    law is kept only where it lowers the training error and stays physical; the PI of every step
-    is then refitted under the chain as it now is. ``dropped``: a word has just left the chain,
-    so a single word left is refined too (without the one it shared the residual with), and the
-    steps' PIs are refitted whatever changed.
+    of them (a coil heating found before an asymmetry takes up some of the loop's widening; a
+    creep named before the heating is sized takes up part of the drift): one round of refinement
+    with the whole chain puts each back on its own physics. Exact laws are refined by least
+    squares, time constants and other screened parameters between their grid neighbours; a
+    static law at a range end is left where the rows that show it placed it. A refined law is
+    kept only where it lowers the training error and stays physical; the PI of every step is then
+    refitted under the chain as it now is, and each word's reported parameters (a linear column's
+    coefficient: a creep's amplitude, a supply's exponent) are those of the whole chain's fit, not
+    of the round it was named in. ``dropped``: a word has just left the chain, so a single word
+    left is refined too (without the one it shared the residual with), and the steps' PIs are
+    refitted whatever changed.
     """
-    if len(sel.chain) < (1 if dropped else 2) or not sel.reference.refit:
+    if len(sel.chain) < (1 if dropped else 2):
         return
     changed = dropped
     for step in sel.steps:
         w = VOCABULARY[step.word]
         params = sel.chain[step.word]
-        if not w.bounds(sig, sel.reference) or not w.is_exact(params):
+        if w.static or not params or not sel.reference.refit:
             continue
         others = {k: p for k, p in sel.chain.items() if k != step.word}
         rows = _subsample(folds.train)
@@ -655,7 +664,7 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
         d, b = design(step.word, sel.reference, sig, chain, folds)
         phys = w.physical(new, _coef(step.word, d, fit_final(d, sig.flow_lpm, folds.train)), sig, b)
         if (w.implausible(phys) or w.not_resolved(new, sig, b) or _at_upper_bound(w, new, sig, b)
-                or _beyond_physics(w, new, others)):
+                or _beyond_physics(w, new, others) or _within_phase(step.word, new, others, sig)):
             continue
         sel.chain, sel.params[step.word], step.params = chain, phys, new
         changed = True
@@ -664,6 +673,11 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
         for step in sel.steps:
             sub = {**sub, step.word: sel.chain[step.word]}
             step.base = unbend(sel.reference, sig, sub, folds.train)
+    d = build(sel.steps[-1].base, sig, sel.chain)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    for step in sel.steps:
+        w = VOCABULARY[step.word]
+        sel.params[step.word] = w.physical(sel.chain[step.word], _coef(step.word, d, theta), sig, sel.steps[-1].base)
 
 
 def _gross_exact(cands: dict, words: list, sel: Selection, before: CVResult, cur: Base, sig: Signals, folds: Folds,
