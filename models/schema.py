@@ -193,9 +193,7 @@ def read_json(path: str | os.PathLike, max_depth: int = MAX_JSON_DEPTH, max_byte
     import json
 
     path = os.fspath(path)
-    if os.path.isfile(path) and os.path.getsize(path) > max_bytes:
-        raise InputError(f"{path}: {os.path.getsize(path)} bytes, larger than {max_bytes} for a JSON input")
-    data = read_bytes(path, "a JSON file")
+    data = read_bytes(path, "a JSON file", max_bytes)
     text = decode_utf8(path, data.removeprefix(b"\xef\xbb\xbf"))
     depth = _json_depth(text)
     if depth > max_depth:

@@ -65,10 +65,12 @@ def session_config(cfg, listen: list[str] | None, connect: list[str] | None, rol
     messages of at most :data:`MAX_MESSAGE_BYTES` (Zenoh drops larger ones
     unassembled) and no shared memory.
     """
-    from models.recording import InputError
+    from models.recording import InputError, check_input_file
 
     z = cfg["zenoh"]
     path = cfg.resolve(z["config"])
+    if os.path.lexists(path):  # Zenoh's own reader would block on a FIFO and never end on /dev/zero
+        check_input_file(path, "a Zenoh configuration", 16 << 20)
     try:
         conf = zenoh.Config.from_file(path) if os.path.exists(path) else zenoh.Config()
     except zenoh.ZError as exc:
