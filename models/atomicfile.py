@@ -51,6 +51,10 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", encoding: str | None =
     encoding, newline : as :func:`open` (text mode only).
     """
     path = os.path.abspath(os.fspath(path))
+    if os.path.exists(path) and not os.path.isfile(path):  # renaming over it would replace /dev/null itself
+        from .recording import InputError
+
+        raise InputError(f"{path}: exists and is not a regular file (a folder, device, FIFO or socket)")
     folder, base = os.path.split(path)
     tmp = os.path.join(folder, f".{base}.tmp{os.getpid()}")
     sweep_stale(path)
