@@ -38,6 +38,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (exit 2), as DESIGN.md asks of bad input."""
 
     def error(self, message):
+        message = message.replace("\r", "\\r").replace("\n", "\\n")
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
 
@@ -87,7 +88,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except InputError as exc:
-        sys.stderr.write(f"valvectl {args.verb}: error: {exc}\n")
+        # one line, whatever the input held (a file name or a cell with a line break in it)
+        text = str(exc).replace("\r", "\\r").replace("\n", "\\n")
+        sys.stderr.write(f"valvectl {args.verb}: error: {text}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"valvectl {args.verb}: interrupted\n")
