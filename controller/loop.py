@@ -522,7 +522,9 @@ class Loop:
         if on_measurement and serve is None:
             raise ValueError("trigger 'measurement' needs a transport that signals measurements (a valve over Zenoh)")
         n_steps = None if duration_s is None else max(1, int(round(duration_s * cfg.rate_hz)))
-        cols = _Columns(n_steps if n_steps else 1 << 16)
+        # A set length is preallocated up to 2^20 rows (96 MiB) and grown beyond, as a run of no set length is:
+        # a legal run of days must not ask for its whole record before the first step.
+        cols = _Columns(min(n_steps, 1 << 20) if n_steps else 1 << 16)
         faults = Faults()
         accept_meas = in_range(*cfg.sensor_range_lpm)
         accept_ref = accept_meas

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.recording import read_table
+from models.recording import RANGES, check_sampling, read_table
 
 
 class RecordedReference:
@@ -24,7 +24,8 @@ class RecordedReference:
     """
 
     def __init__(self, path):
-        rec = read_table(path, ("t_s", "ref_lpm"))
+        rec = read_table(path, ("t_s", "ref_lpm"), ranges={"ref_lpm": RANGES["ref_lpm"]})
+        check_sampling(rec)  # one sample rate: the run's length and its steps come from this file
         self.path = path
         self._t = rec.columns["t_s"] - rec.columns["t_s"][0]
         self._v = rec.columns["ref_lpm"]

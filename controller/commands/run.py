@@ -46,6 +46,15 @@ def parse_inject(text: str) -> tuple[float, str, float]:
     return t_s, name.strip(), v
 
 
+def _check_steps(duration_s: float, rate_hz: float, what: str) -> None:
+    """A run's length in steps within what its record can hold (:data:`models.recording.MAX_SAMPLES`)."""
+    from models.recording import MAX_SAMPLES, InputError
+
+    if duration_s * rate_hz > MAX_SAMPLES:
+        raise InputError(f"{what}: {duration_s:g} s at {rate_hz:g} Hz is {duration_s * rate_hz:.3g} steps, more than "
+                         f"the {MAX_SAMPLES:.0e} a run records (0 runs until interrupted)")
+
+
 def run(args) -> int:
     import dataclasses
     import signal
@@ -69,6 +78,8 @@ def run(args) -> int:
     duration = top["duration_s"] if args.duration is None else args.duration
     if not (0 <= duration < float("inf")):
         raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), got {duration}")
+    _check_steps(duration, settings_rate := cfg["loop"]["rate_hz"],
+                 "--duration" if args.duration is not None else f"{cfg.path}: duration_s")
     injections = [parse_inject(x) for x in args.inject]
     settings = cfg.loop if args.trigger is None else dataclasses.replace(cfg.loop, trigger=args.trigger)
     if settings.trigger == "measurement" and plant_kind != "zenoh":
@@ -83,7 +94,11 @@ def run(args) -> int:
 
         recorded = RecordedReference(ref_kind)
         if args.duration is None:
+            if not recorded.span_s > 0:
+                raise InputError(f"{ref_kind}: a reference of one instant (its span is 0 s) sets no run length; "
+                                 "give --duration")
             duration = recorded.span_s
+            _check_steps(duration, settings_rate, f"{ref_kind}: column 't_s' (its span)")
     preview = preview_s(cfg, "zenoh" if ref_kind == "zenoh" else "profile")
     sup = supervisor(cfg, word, model)
 
@@ -100,11 +115,15 @@ def run(args) -> int:
         from plant_sim.plant import Plant, load_plant
 
         plant_params = load_plant(cfg.resolve(top["plant_config"]), effects=cfg["effects"])
+        from plant_sim.plant import PlantSettings
+
         for _, name, value in injections:  # a bad name or value is bad input now, not mid-run
+            if name not in PlantSettings.__struct_fields__:  # not the model, nor anything else of PlantParams
+                raise InputError(f"--inject {name}: not a plant setting or effect word")
             try:
                 plant_params.replace(**{name: value})
-            except TypeError:
-                raise InputError(f"--inject {name}: not a plant setting or effect word") from None
+            except InputError as exc:  # the plant schema's own line: "plant: FIELD: problem (got VALUE)"
+                raise InputError(f"--inject {name}={value:g}: {str(exc).removeprefix('plant: ')}") from None
         transport = SimTransport(Plant(plant_params, settings.rate_hz, seed=top["seed"]), settings.safe_duty_pct,
                                  injections)
         if session is not None:
