@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 import msgspec
 
 from models.recording import MAX_RATE_HZ, InputError
-from models.schema import Finite, KeyId, NoiseLpm, NonEmpty, NonNegative, Percent, Positive, convert
+from models.schema import KeyId, NoiseLpm, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
 from .alarms import AlarmSettings
@@ -42,6 +42,10 @@ Seconds60 = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
 #: A safety timeout, ms: the watchdog's and the valve node's. Finite is not enough: 1e308 ms would switch
 #: the safety off as surely as NaN did, so at most 10 s (a dead controller must not hold a valve open longer).
 TimeoutMs = Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)]
+#: How long a reference may be held without news, ms: a stack that died must not set the flow for ever.
+RefTimeoutMs = Annotated[float, msgspec.Meta(gt=0.0, le=60_000.0)]
+#: A gauge pressure, bar: from vacuum up to what any supply line could hold.
+GaugeBar = Annotated[float, msgspec.Meta(ge=-1.01325, le=1000.0)]
 
 
 class _Section(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -51,7 +55,7 @@ class _Section(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class Loop(_Section):
     rate_hz: RateHz = 1000.0
     stale_ms: TimeoutMs = 50.0            # watchdog: no measurement for this long -> safe state
-    ref_stale_ms: Positive = 500.0
+    ref_stale_ms: RefTimeoutMs = 500.0    # a reference older than this -> 0 L/min
     safe_duty_pct: Percent = 0.0
     flow_max_lpm: FlowLpm = 200.0
     status_hz: Annotated[float, msgspec.Meta(ge=0.01)] = 10.0
@@ -120,14 +124,18 @@ class ValveNode(_Section):
     command_timeout_ms: TimeoutMs = 100.0  # no cmd/duty for this long -> the node closes its valve
     aux_hz: NonNegative = 50.0            # meas/supply and meas/coil_temp rate (0: not published)
 
+    def __post_init__(self):
+        if self.aux_hz > self.rate_hz:
+            raise ValueError(f"aux_hz: must be <= rate_hz (got {self.aux_hz:g} > {self.rate_hz:g})")
+
 
 class Identify(_Section):
     """``valvectl identify`` (controller.identify): protocol length and its safety rules."""
 
     duration_s: Annotated[float, msgspec.Meta(ge=10.0, le=86400.0)] = 600.0  # valve time of the protocol
-    flow_limit_lpm: Positive = 200.0      # measured flow above this -> safe duty, aborted
-    stale_ms: Positive = 250.0            # no measurement for this long -> safe duty, aborted
-    wait_s: Positive = 10.0               # for the valve's first measurement
+    flow_limit_lpm: FlowLpm = 200.0       # measured flow above this -> safe duty, aborted
+    stale_ms: TimeoutMs = 250.0           # no measurement for this long -> safe duty, aborted
+    wait_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 10.0  # for the valve's first measurement
     seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0  # step levels
     tune_candidates: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 200  # the gain sweep on the identified valve
 
@@ -141,7 +149,7 @@ class Alarms(_Section):
     saturated_hold_s: NonNegative = 0.1
     mismatch_lpm: Positive = 10.0
     mismatch_hold_s: NonNegative = 0.1
-    supply_low_bar: Finite = 2.0
+    supply_low_bar: GaugeBar = 2.0
     supply_hold_s: NonNegative = 0.02
 
 

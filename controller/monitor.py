@@ -10,6 +10,7 @@ feeds statuses in, so the view is tested on plain dicts.
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 
 from controller.transport.payload import Message, PayloadError, decode
@@ -34,6 +35,12 @@ def _num(v) -> float:
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
 
 
+def _cell(v) -> str:
+    """A text cell of the monitor recording: what a status says, cut to 64 characters, with no comma, quote or
+    line break (a status of the network must not add columns or rows to the CSV)."""
+    return re.sub(r'[,"\r\n]', " ", str(v))[:64]
+
+
 def sparkline(values, width: int) -> str:
     """The last ``width`` values as block glyphs scaled between their min and max (nan: a space)."""
     vals = list(values)[-width:]
@@ -41,13 +48,14 @@ def sparkline(values, width: int) -> str:
     if not finite:
         return " " * len(vals)
     lo, hi = min(finite), max(finite)
-    span = hi - lo
+    # scaled in halves: hi - lo and v - lo overflow to inf for values near +-1e308 (inf / inf is nan)
+    span = hi / 2 - lo / 2
     out = []
     for v in vals:
         if v != v:
             out.append(" ")
         else:
-            out.append(BARS[0] if span <= 0 else BARS[min(len(BARS) - 1, int((v - lo) / span * len(BARS)))])
+            out.append(BARS[0] if span <= 0 else BARS[min(len(BARS) - 1, int((v / 2 - lo / 2) / span * len(BARS)))])
     return "".join(out)
 
 
@@ -77,8 +85,8 @@ class MonitorState:
             self.history[k].append(_num(status.get(k)))
         alarms = status.get("alarms")
         alarms = ";".join(a for a in alarms if isinstance(a, str)) if isinstance(alarms, list) else ""
-        return (self.t_s, str(status.get("state")), str(status.get("controller", "")),
-                *(self.history[k][-1] for k in ("ref_lpm", "flow_lpm", "duty_pct", "error_lpm")), alarms)
+        return (self.t_s, _cell(status.get("state")), _cell(status.get("controller", "")),
+                *(self.history[k][-1] for k in ("ref_lpm", "flow_lpm", "duty_pct", "error_lpm")), _cell(alarms))
 
 
 _STATE_STYLE = {"running": "bold green", "safe": "bold yellow", "fault": "bold red"}

@@ -29,7 +29,7 @@ import numpy as np
 from models.direct import direct
 from models.model import FittedModel, load_model
 from models.recording import InputError
-from models.schema import Finite, NonNegative, Positive, convert
+from models.schema import Finite, NoiseLpm, NonNegative, Positive, convert
 from models.tomlfile import read_toml
 
 from . import kernel as K
@@ -126,8 +126,9 @@ class PlantParams:
 class _Settings(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The plant file's settings, flat (every field of :class:`PlantParams` but the model); effects added below."""
 
-    noise_lpm: NonNegative = 0.5
-    scale_factor: NonNegative = 120.0
+    noise_lpm: NoiseLpm = 0.5
+    # counts per L/min (0: no quantization); bounded so that flow x scale stays far from overflow
+    scale_factor: Annotated[float, msgspec.Meta(ge=0.0, le=1e9)] = 120.0
     range_lpm: tuple[Finite, Finite] = (-250.0, 250.0)
     supply_bar: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 3.0
     model_supply_bar: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 3.0

@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import os
+import re
 
 
 def add_arguments(p) -> None:
@@ -21,6 +22,10 @@ def add_arguments(p) -> None:
                    help="extra subjectAltName of every role certificate: a DNS name or an IP address (repeatable)")
     p.add_argument("--days", type=int, default=3650, metavar="N", help="validity, days (default %(default)s)")
     p.add_argument("--site", default="valvectl site", metavar="NAME", help="the CA's common name (default %(default)s)")
+
+
+#: A DNS host name: dot-separated labels of letters, digits and hyphens, no label starting or ending with one.
+_DNS = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(?:\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?")
 
 
 def _names(hosts: list[str]):
@@ -33,8 +38,10 @@ def _names(hosts: list[str]):
         try:
             out.append(x509.IPAddress(ipaddress.ip_address(h)))
         except ValueError:
-            if not h or any(c.isspace() or c in "/:@*" for c in h):
-                raise InputError(f"--host {h!r}: not a DNS name or an IP address") from None
+            if not _DNS.fullmatch(h) or len(h) > 253:
+                raise InputError(f"--host {h[:80]!r}: not a DNS name (labels of 1-63 letters, digits or '-', "
+                                 "dot-separated, at most 253 characters; IDN names in their xn-- form) "
+                                 "or an IP address") from None
             out.append(x509.DNSName(h))
     return out
 

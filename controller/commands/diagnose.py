@@ -25,6 +25,10 @@ def run(args) -> int:
     from models.model import load_model
     from models.recording import check_fittable, read_recording
 
+    from models.recording import InputError
+
+    if args.model and args.config:  # one would be silently ignored: the simulation to hold against is one
+        raise InputError(f"--model {args.model} and --config {args.config}: give one (--config names its own model)")
     check_outputs(args, files=("json", "predictions"))
     rec = read_recording(args.recording)
     check_fittable(rec)

@@ -33,8 +33,9 @@ def run(args) -> int:
 
     from controller.commands.outputs import check_outputs
 
-    if not args.duration >= 0:
-        raise InputError(f"--duration: must be >= 0, got {args.duration}")
+    if not 0 <= args.duration < float("inf"):
+        raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), "
+                         f"got {args.duration}")
     check_outputs(args, files=("record",), folders=())
     cfg = load_run_config(args.config)
     key = f"vent/valve/{cfg['zenoh']['id']}/ctrl/status"
