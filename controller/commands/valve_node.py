@@ -35,6 +35,9 @@ def run(args) -> int:
         raise InputError(f"--duration: must be a finite number of seconds >= 0 (0: until interrupted), "
                          f"got {args.duration}")
     duration = args.duration or None  # 0: until interrupted
+    from controller.commands.outputs import check_outputs
+
+    check_outputs(args, files=("json",), folders=())  # before the run, not after it
     cfg = load_run_config(args.config)
     node_cfg = cfg["valve_node"]
     plant = Plant(load_plant(cfg.resolve(cfg[""]["plant_config"]), effects=cfg["effects"]), node_cfg["rate_hz"],

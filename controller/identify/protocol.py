@@ -72,8 +72,8 @@ class ProtocolParams:
     seed: int = 0
 
     def __post_init__(self):
-        if not (math.isfinite(self.duration_s) and self.duration_s >= 10.0):
-            raise InputError(f"--duration: at least 10 s of valve time, got {self.duration_s:g}")
+        if not (math.isfinite(self.duration_s) and 10.0 <= self.duration_s <= 86400.0):  # as [identify] duration_s
+            raise InputError(f"--duration: 10 s to one day (86400 s) of valve time, got {self.duration_s:g}")
         if not self.duty_min_pct < self.duty_max_pct:
             raise InputError(f"limits: duty_min_pct {self.duty_min_pct:g} must be below duty_max_pct {self.duty_max_pct:g}")
 
