@@ -34,13 +34,45 @@ VERBS = {
 }
 
 
+#: The arguments being parsed (for the parsers' error messages).
+_ARGV: list[str] = []
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (exit 2), as DESIGN.md asks of bad input."""
+    """argparse with one-line errors (exit 2), as DESIGN.md asks of bad input; a misspelt flag is named
+    rather than the required arguments it hid."""
+
+    def _unknown_options(self) -> list[str]:
+        verb = self.prog.split()[-1]
+        args = _ARGV[_ARGV.index(verb) + 1:] if verb in _ARGV else _ARGV
+        known = list(self._option_string_actions)
+        out = []
+        for a in args:
+            if a == "--":
+                break
+            flag = a.split("=", 1)[0]
+            if not flag.startswith("-") or flag == "-" or _is_number(flag):
+                continue
+            if not any(k.startswith(flag) for k in known):  # argparse takes unambiguous abbreviations
+                out.append(flag)
+        return out
 
     def error(self, message):
+        if message.startswith("the following arguments are required"):  # argparse checks these before it
+            unknown = self._unknown_options()                            # looks at flags it does not know
+            if unknown:
+                message = f"unrecognized arguments: {' '.join(unknown)}"
         message = message.replace("\r", "\\r").replace("\n", "\\n")
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -80,6 +112,7 @@ def resolve_default_paths(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    _ARGV[:] = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     resolve_default_paths(args)
     # imported after parsing: it brings numpy, which --help and usage errors never need

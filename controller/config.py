@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from models.recording import MAX_RATE_HZ, InputError
+from models.recording import MAX_RATE_HZ, MAX_SAMPLES, InputError
 from models.schema import KeyId, NoiseLpm, NonEmpty, NonNegative, Percent, Positive, convert
 from models.tomlfile import read_toml
 
@@ -189,6 +189,9 @@ class RunFile(_Section):
     def __post_init__(self):
         if self.controller not in control.MODES:
             raise ValueError(f"controller: {self.controller!r} is not one of {', '.join(control.MODES)}")
+        if self.duration_s * self.loop.rate_hz > MAX_SAMPLES:  # a run records every step
+            raise ValueError(f"duration_s: {self.duration_s:g} s at loop.rate_hz {self.loop.rate_hz:g} is more than "
+                             f"the {MAX_SAMPLES:.0e} steps a run records (0: until interrupted)")
 
 
 #: section name -> its struct ("" : the top-level keys); sections typed ``dict`` are free tables.
@@ -276,8 +279,9 @@ def _check_profile(profile: dict, flow_max_lpm: float, source: str) -> None:
     from plant_sim.protocols import BreathProfile
 
     for name, v in profile.items():  # a TOML boolean is no number, though Python's bool is an int
-        if isinstance(v, bool):
-            raise InputError(f"{source}: profile.{name}: expected a number or a word, got {v!r}")
+        word = name == "kind"
+        if isinstance(v, bool) or not isinstance(v, str if word else (int, float)):
+            raise InputError(f"{source}: profile.{name}: expected {'a word' if word else 'a number'}, got {v!r}")
     try:
         p = BreathProfile(**profile)
     except TypeError as exc:

@@ -70,7 +70,11 @@ def fit_model(
 def fit_recording(kind: str, rec: Recording, n: int | None = None) -> FittedModel:
     """Fit ``kind`` to a valve recording (duty in, flow out); one without enough rows or excitation is refused."""
     check_fittable(rec)
-    return fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm, n=n, source=rec.path)
+    try:
+        return fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm, n=n, source=rec.path)
+    except InputError as exc:  # a kind's own refusal ("preisach-cont: the input turns too rarely"): name the file
+        text = str(exc)
+        raise InputError(text if text.startswith(rec.path) else f"{rec.path}: {text}") from None
 
 
 def evaluate(model: FittedModel, x: np.ndarray, y: np.ndarray) -> Metrics:

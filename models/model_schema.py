@@ -32,7 +32,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from .schema import Finite
+
 
 #: Largest magnitude of any number in a model file. Cores work in normalized units (inputs and
 #: outputs within [-1, 1]), so their numbers are O(1) (inverse weights up to 1/MIN_SLOPE = 1e3);
@@ -157,7 +157,8 @@ class PIModParams(msgspec.Struct, forbid_unknown_fields=True):
     h: list[Coefficient]
     g: list[Coefficient]
     offset: Coefficient = 0.0
-    floor: Finite = -MAX_FLOOR
+    floor: Annotated[float, msgspec.Meta(ge=-MAX_FLOOR, le=LIMIT)] = -MAX_FLOOR  # none by default; at most
+    # a normalized flow as large as any other coefficient (1e300 made every prediction 1e300 L/min)
     y0: list[Coefficient] | None = None
     a: Annotated[float, msgspec.Meta(ge=0.0, le=LIMIT)] = 0.0
     p: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.0

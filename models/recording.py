@@ -408,15 +408,16 @@ def check_sampling(rec: Recording) -> None:
                          f"{MAX_GAP_STEPS} times the median step ({median:.3g} s): not one sample rate")
 
 
-def check_fittable(rec: Recording, min_rows: int = MIN_FIT_ROWS) -> None:
-    """Refuse a recording that cannot identify a model: too few rows, or no excitation (duty or flow constant)."""
+def check_fittable(rec: Recording, min_rows: int = MIN_FIT_ROWS, purpose: str = "fit a model") -> None:
+    """Refuse a recording that cannot identify (or validate) a model: too few rows, or no excitation (duty or
+    flow constant)."""
     if len(rec) < min_rows:
-        raise InputError(f"{rec.path}: {len(rec)} data rows, too few to fit a model (at least {min_rows})")
+        raise InputError(f"{rec.path}: {len(rec)} data rows, too few to {purpose} (at least {min_rows})")
     for name, unit in (("duty_pct", "%"), ("flow_lpm", "L/min")):
         v = rec.columns[name]
         if np.ptp(v) < MIN_EXCITATION[name]:
             raise InputError(f"{rec.path}: column '{name}': spans only {np.ptp(v):.3g} {unit} "
-                             f"({v.min():g}..{v.max():g}): no excitation to fit a model on")
+                             f"({v.min():g}..{v.max():g}): no excitation to {purpose} on")
 
 
 class RecordingWriter:

@@ -24,6 +24,10 @@ def run(args) -> int:
     check_outputs(args, files=("json", "plot"))
     rec = read_recording(args.recording)
     val = read_recording(args.validate) if args.validate else None
+    if val is not None:  # a validation of one row or of a constant duty has no r, no error to speak of
+        from models.recording import check_fittable
+
+        check_fittable(val, purpose="validate a model")
 
     def progress(kind: str) -> None:
         if sys.stderr.isatty():

@@ -41,8 +41,8 @@ def parse_inject(text: str) -> tuple[float, str, float]:
         t_s, v = float(at), float(value)
     except ValueError:
         raise InputError(f"--inject {text}: expected NAME=VALUE@T (e.g. supply_bar=0.3@9.2)") from None
-    if not (t_s >= 0 and t_s == t_s) or v != v:
-        raise InputError(f"--inject {text}: T must be a time >= 0 s and VALUE a number")
+    if not (0 <= t_s < float("inf")) or not abs(v) < float("inf"):
+        raise InputError(f"--inject {text}: T must be a finite time >= 0 s and VALUE a finite number")
     return t_s, name.strip(), v
 
 

@@ -7,6 +7,9 @@ import sys
 COLUMNS = ("t_s", "duty_pct", "flow_lpm", "supply_bar", "coil_temp_c")
 #: Rows per chunk when progress is shown (chunks chain exactly: the same recording as one call).
 CHUNK = 200_000
+#: Most rows a simulated recording may have: the CSV is written at ~0.1-0.2 M rows/s, so 2 M rows (5.5 h at
+#: 100 Hz, 33 min at 1 kHz) take seconds; 1e8 (what a protocol may sample) took minutes and gigabytes.
+MAX_ROWS = 2_000_000
 
 
 def add_arguments(p) -> None:
@@ -57,7 +60,13 @@ def run(args) -> int:
         raise InputError(f"--seed: must be within 0..2**63-1 (got {args.seed})")
     effects = dict(parse_effect(text) for text in args.effect)
     params = load_plant(args.plant, effects)
+    if args.duration is not None and args.duration * args.rate > MAX_ROWS:  # before the protocol is sampled
+        raise InputError(f"--duration: {args.duration:g} s at {args.rate:g} Hz is {args.duration * args.rate:.3g} "
+                         f"rows, more than the {MAX_ROWS:.0e} a simulated recording may have")
     duty = protocol(args.protocol, args.rate, args.duration, seed=args.seed)
+    if len(duty) > MAX_ROWS:  # a protocol's own length, or a protocol file's span
+        raise InputError(f"--protocol {args.protocol}: {len(duty)} rows at {args.rate:g} Hz, more than the "
+                         f"{MAX_ROWS:.0e} a simulated recording may have (give --duration or a lower --rate)")
     if sys.stderr.isatty() and len(duty) > CHUNK:
         cols = simulate_with_progress(params, args.rate, args.seed, duty)
     else:

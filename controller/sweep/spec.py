@@ -45,6 +45,8 @@ from models.tomlfile import read_toml
 from . import metrics, space
 
 DEFAULT_SWEEP = "config/sweep.toml"
+#: Fewest loop steps a sweep's run may have (0 made an empty reference and an IndexError in the figures).
+MIN_STEPS = 10
 
 
 class SweepFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -133,6 +135,10 @@ def load_sweep(path: str | os.PathLike = DEFAULT_SWEEP) -> SweepSpec:
     run = load_run_config(f.run if os.path.isabs(f.run) else os.path.join(folder, f.run))
     run = _with_profile(run, f.profile, path)
     duration = f.duration_s
+    rate = run["loop"]["rate_hz"]
+    if round(duration * rate) < MIN_STEPS:  # each candidate's figures need a few loop steps
+        raise InputError(f"{path}: duration_s: {duration:g} s at the run's {rate:g} Hz is fewer than {MIN_STEPS} "
+                         f"loop steps")
     variants = f.variants
     from plant_sim.plant import check_settings
 
