@@ -40,10 +40,14 @@ import msgspec
 LIMIT = 1e9
 Coefficient = Annotated[float, msgspec.Meta(ge=-LIMIT, le=LIMIT)]
 Threshold = Annotated[float, msgspec.Meta(ge=0.0, le=LIMIT)]
-ScaleRange = Annotated[float, msgspec.Meta(gt=0.0, le=LIMIT)]
+#: A scale's half range (duty %, flow L/min): below 1e-6 the normalized inputs leave every bound (1e-300 made
+#: inf and NaN predictions in the diagnosis).
+ScaleRange = Annotated[float, msgspec.Meta(ge=1e-6, le=LIMIT)]
 
-#: Most operators/relays a model file may hold (the paper's largest, Preisach n = 50, has 1275).
-MAX_ELEMENTS = 100_000
+#: Most operators/relays a model file may hold (the paper's largest, Preisach n = 50, has 1275; the largest a
+#: fit makes, Preisach n = 200, 20 100). The diagnosis builds a design of rows x operators: 100 000 operators
+#: on a 20 s recording asked for 1.5 GiB, on 150 000 rows for 120 GB.
+MAX_ELEMENTS = 25_000
 #: Lowest closed flow a pi-mod file may state (normalized units; the default: none).
 MAX_FLOOR = 1e300
 #: Most Everett mesh points per axis.

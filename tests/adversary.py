@@ -325,10 +325,10 @@ def model_mutations(models: dict[str, dict]) -> list[tuple[str, str, bool | None
         add("utf16", ("\ufeff" + json.dumps(m)).encode("utf-16-le"))
     # kind-specific rules
     pi = models["pi"]
-    n = 100_000  # MAX_ELEMENTS operators: legal, and every verb must finish with them
+    n = 25_000  # MAX_ELEMENTS operators: legal, and every verb must finish with them
     big = _set(_set(_set(pi, ("params", "r"), [i / n for i in range(n)]), ("params", "w"), [1.0 / n] * n),
                ("params", "y0"), None)
-    out.append(("pi/100000_operators_legal", json.dumps(_del(big, ("inverse",))), None, "m.json"))
+    out.append(("pi/25000_operators_legal", json.dumps(_del(big, ("inverse",))), None, "m.json"))
     out.append(("pi/r_unsorted", json.dumps(_set(pi, ("params", "r"), [pi["params"]["r"][1], pi["params"]["r"][0],
                                                                      *pi["params"]["r"][2:]])), False, "r"))
     out.append(("pi/inverse_missing_for_ff", json.dumps(_del(pi, ("inverse",))), None, "inverse"))
