@@ -45,7 +45,7 @@ def check_outputs(args, files=("json", "plot", "record"), folders=("report",)) -
 
 
 def _flag(name: str) -> str:
-    return "-o" if name == "output" else "--" + name.replace("_", "-")
+    return "--" + name.replace("_", "-")
 
 
 def _probe(folder: str, what: str) -> None:
