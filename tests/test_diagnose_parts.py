@@ -279,3 +279,26 @@ def test_reference_is_fitted_on_the_rows_a_joint_test_fits_on():
     keep = [i for i, w in enumerate(d.names) if w != "creep"]
     without = Design(d.F, d.X[:, keep], tuple(d.names[i] for i in keep), d.fit_ok, d.clip_hi, d.floor)
     assert cross_validate(without, sig.flow_lpm, folds).test.sum() == pytest.approx(before.test.sum(), rel=0.01)
+
+
+def test_a_model_file_with_thousands_of_operators_enters_the_refits_through_a_small_shape():
+    # a legal PI file of 25 000 operators made the refits build 16 GB (rows x operators, operators
+    # squared); past SHAPE_MAX_OPERATORS its loop shape is a BASELINE_N PI fitted to its prediction,
+    # while its own prediction stays the baseline
+    import json
+
+    from models.diagnose.design import BASELINE_N, SHAPE_MAX_OPERATORS, fixed_base
+    from models.diagnose.signals import Signals
+    from models.model import FittedModel
+
+    doc = json.load(open("config/valve_model.json"))
+    del doc["inverse"]
+    for n, own in ((51, True), (SHAPE_MAX_OPERATORS + 1, False)):
+        doc["params"].update(r=[i / n for i in range(n)], w=[1.0 / n] * n, y0=None)
+        model = FittedModel.from_dict(json.loads(json.dumps(doc)), source="m.json")
+        t = np.arange(2000) / 100.0
+        duty = 50 + 40 * np.sin(2 * np.pi * t / 5.0)
+        sig = Signals(t, duty, model.predict(duty)[0], None, None, 100.0)
+        base = fixed_base(model, sig)
+        assert base.model is model
+        assert len(base.shape.r) == (n if own else BASELINE_N + 1)  # fit_pi's n + 1 thresholds, r_0 = 0

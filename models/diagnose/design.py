@@ -45,6 +45,11 @@ from .words import VOCABULARY, Columns
 RIDGE = 1e-10
 #: Operators of the paper's symmetric PI baseline (Eq. 2).
 BASELINE_N = 50
+#: Most play operators a model file's own PI brings into the refits: each refit builds rows x
+#: operators outputs and an operators-squared system (25 000 operators: 16 GB and 96 s on 2000
+#: rows). A larger PI enters them as a model of another kind does, through a BASELINE_N-operator
+#: PI fitted to its prediction; its own prediction stays the baseline.
+SHAPE_MAX_OPERATORS = 1000
 #: A measured flow within this many times the sensor noise of zero is a valve shut by itself.
 SHUT_NOISE = 3.0
 
@@ -575,11 +580,12 @@ def density(shape: PIModel, xs: Scaling, sig: Signals, y_unit: np.ndarray, rows:
 
 
 def fixed_base(model: FittedModel, sig: Signals) -> Base:
-    """A model file as the fixed baseline; its loop shape from its own PI, or a PI fitted to its prediction."""
+    """A model file as the fixed baseline; its loop shape from its own PI (of at most
+    :data:`SHAPE_MAX_OPERATORS` operators), or a PI fitted to its prediction."""
     core = model.core
     y_model = model.y_scale.to_unit(model.predict(sig.duty_pct)[0])
     every = np.ones(len(sig), dtype=bool)  # the model's own prediction: no measurement is fitted
-    if isinstance(core, PIModel):
+    if isinstance(core, PIModel) and len(core.r) <= SHAPE_MAX_OPERATORS:
         return Base(False, model, core, model.x_scale, density(core, model.x_scale, sig, y_model, every))
     xs = Scaling.from_data(sig.duty_pct)
     shape = fit_pi(xs.to_unit(sig.duty_pct), y_model, n=BASELINE_N)
