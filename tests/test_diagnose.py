@@ -292,6 +292,48 @@ def test_backward_check_drops_a_word_a_later_one_explains():
     assert D._backward(sel, sig, folds, margins, rnd=3) is None
 
 
+@pytest.mark.parametrize("order", [("valve_dynamics", "saturation", "coil_heating", "transport_delay"),
+                                   ("transport_delay", "saturation", "coil_heating", "valve_dynamics")])
+def test_holdout_confirms_each_word_with_the_others_in_place(order):
+    # a coil 35 K warm, a clip at 140 L/min and a 30 ms lag (mixed excitation). The clip corrects
+    # nothing until the heating that drives the flow to it is modelled: on the lag alone it raises the
+    # holdout RMSE, so a confirmation in naming order refuses it. Held against the whole chain, every
+    # true word is confirmed whatever the order it was named in, and a 50 ms delay that the chain
+    # does not need is not (traced with the words it was held against)
+    from models.diagnose import _ChainFits, _confirm
+    from models.diagnose import detectors as D
+    from models.diagnose.design import clip, fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import raw_signals, work_signals
+    from models.diagnose.trace import NAMED, UNCONFIRMED, Decision, explain
+
+    G = pytest.importorskip("diagnose_gross")
+    rec = G.record(G.Probe("plant", (("coil_heating", 35.0), ("saturation", 140.0), ("valve_dynamics", 0.03)),
+                           "mixed", 7, 0.5))
+    raw, sig = raw_signals(rec, None), work_signals(rec, None)
+    folds = make_folds(sig.t_s)
+    base = fit_baseline(sig, folds)
+    hold, y = folds.holdout_at(raw.t_s), raw.flow_lpm
+    laws = {"valve_dynamics": {"tau_s": 0.03, "phase": 1.0}, "saturation": {"full_open_lpm": 140.0},
+            "coil_heating": {"rise55_k": 35.0, "tau_s": 180.0, "start": 0.0}, "transport_delay": {"delay_s": 0.05}}
+    sel = D.Selection()
+    sel.reference, _ = D.reference(base, sig, folds)
+    sel.chain = {w: laws[w] for w in order}
+    none = np.zeros(folds.k)
+    sel.steps = [D.Candidate(w, 0.5, folds.k, dict(p), none, none) for w, p in sel.chain.items()]
+    sel.trace = [Decision(w, i, 0.5, 0.1, folds.k, folds.k, folds.k, 2, "exact", NAMED) for i, w in enumerate(order)]
+    fits = _ChainFits(sel, sig, raw, folds, clip(base.predict(raw, {}), None, bool(base.shut(raw).any())))
+
+    def rmse(*words):
+        return np.sqrt(np.mean((y - fits.predict(fits.chain(words)))[hold] ** 2))
+
+    assert rmse("valve_dynamics", "saturation") > rmse("valve_dynamics")  # naming order would refuse the clip
+    words, unconfirmed = _confirm(sel, fits, y, hold)
+    assert words == [w for w in order if w != "transport_delay"]
+    assert [(d.word, d.outcome) for d in unconfirmed] == [("transport_delay", UNCONFIRMED)]
+    assert "saturation" in unconfirmed[0].why and "not asserted" in explain(unconfirmed[0])
+
+
 def test_whole_chain_refines_each_word_and_reports_it_from_the_chain():
     # a 40 ms lag and a wandering supply (recorded), as if each had been named with the other's residual
     # still in it: a lag read as 25 ms, a stale exponent. Refined with the whole chain, the lag's time

@@ -674,10 +674,14 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
             sub = {**sub, step.word: sel.chain[step.word]}
             step.base = unbend(sel.reference, sig, sub, folds.train)
     d = build(sel.steps[-1].base, sig, sel.chain)
-    theta = fit_final(d, sig.flow_lpm, folds.train)
-    for step in sel.steps:
-        w = VOCABULARY[step.word]
-        sel.params[step.word] = w.physical(sel.chain[step.word], _coef(step.word, d, theta), sig, sel.steps[-1].base)
+    sel.params.update(chain_params(sel.chain, d, fit_final(d, sig.flow_lpm, folds.train), sig, sel.steps[-1].base))
+
+
+def chain_params(chain: dict, d: Design, theta: np.ndarray, sig: Signals, base: Base) -> dict:
+    """Word -> its parameters in physical units from the fit ``theta`` of the whole ``chain``'s
+    design ``d`` on ``base`` (a linear column's coefficient, a creep's amplitude or a supply's
+    exponent, is the whole chain's, not that of the round its word was named in)."""
+    return {w: VOCABULARY[w].physical(p, _coef(w, d, theta), sig, base) for w, p in chain.items()}
 
 
 def _gross_exact(cands: dict, words: list, sel: Selection, before: CVResult, cur: Base, sig: Signals, folds: Folds,
