@@ -101,6 +101,27 @@ def test_dead_zone_jump_is_seen_through_a_lag():
     assert not dz._jumps(sig, {"cracking_pct": 42.0}, {})
 
 
+def test_dead_zone_rows_are_read_at_the_sensor_behind_a_delay():
+    # breaths through a 42 % cracking duty, the flow 30 ms late: the last shut rows at the sensor are
+    # those whose duty has already risen past the cracking duty, and there a model without the law
+    # (its PI smoothed through the jump) predicts flow while the measured flow is still zero
+    dz, delay = VOCABULARY["dead_zone"], {"delay_s": 0.03}
+    t = np.arange(30000) / 100.0
+    phase = t % 3.0
+    duty = np.where(phase < 1.0, 30 + 35 * np.clip(phase / 0.2, 0, 1), 30.0)
+    late = lambda q: fx.delayed(q, 100.0, 0.03)  # noqa: E731
+    valve = np.where(duty <= 42, 0.0, (duty - 35) * 4)  # 28 L/min at the cracking duty
+    smoothed = np.clip(np.minimum((duty - 38) * 7, (duty - 35) * 4), 0, None)  # from 38 %, not 42 %
+    before = late(smoothed)
+    rng = np.random.default_rng(3)
+    shut = late(valve) + rng.normal(0, 0.5, len(t))
+    chain = {"transport_delay": delay}
+    assert dz.support(_sig(duty, shut), {"cracking_pct": 42.0}, before, 0.5, chain) is None
+    # the flow that goes on where the law would stop it at the sensor is no dead zone
+    goes_on = before + rng.normal(0, 0.5, len(t))
+    assert dz.support(_sig(duty, goes_on), {"cracking_pct": 42.0}, before, 0.5, chain) is not None
+
+
 def _holds(levels, rows=300):
     """A duty holding each of ``levels`` (%) for ``rows`` rows, in order."""
     return np.repeat(np.asarray(levels, float), rows)

@@ -462,16 +462,19 @@ class DeadZone(Word):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
 
     def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
-        shut = sig.duty_pct <= params["cracking_pct"]
-        if shut.sum() < MIN_END_ROWS:
-            return f"only {int(shut.sum())} rows below the cracking duty"
+        below = int(np.sum(sig.duty_pct <= params["cracking_pct"]))
+        if below < MIN_END_ROWS:
+            return f"only {below} rows below the cracking duty"
         # where the law says the valve is shut the measured flow must really stop (zero within the
-        # noise) while the model before it predicted flow. A lag or a delay of the chain carries the
-        # flow on past the closing: shut means shut at the sensor.
+        # noise) while the model before it predicted flow. Both are read at the sensor, so shut means
+        # shut at the sensor: a lag or a delay of the chain carries the flow on past the closing, and
+        # holds it off past the opening (a breath's duty has risen a few per cent above the cracking
+        # duty before its flow arrives, and those rows are where a model without the law, its PI
+        # smoothed through the jump, predicts flow)
         opened = self.flow_gain(sig, params)
         for w, p in (chain or {}).items():
             opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
-        shut &= opened < 0.02
+        shut = opened < 0.02
         lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
         # either over the shut rows as a whole (a dead zone just above where the model closes by
         # itself), or where the model predicted clear flow (a deep dead zone, most of whose shut
