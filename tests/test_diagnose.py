@@ -230,6 +230,15 @@ def test_gross_dead_zone_behind_a_lag_on_breaths():
 
 
 @pytest.mark.slow
+def test_gross_dead_zone_behind_a_delay_on_breaths():
+    # a 45 % cracking duty behind a 40 ms delay: the flow arrives when the breath's duty is some 8 %
+    # past the cracking duty, and the jump falls between two samples of the rise
+    named = _named({"dead_zone": 45.0, "transport_delay": 0.04}, "breaths", seed=5)
+    assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=1.0)
+    assert named["transport_delay"].params["delay_s"] == pytest.approx(0.04, rel=0.2)
+
+
+@pytest.mark.slow
 def test_gross_heating_with_asymmetry():
     # each refined once more with the other in place: neither takes up part of the other
     named = _named({"coil_heating": 30.0, "asymmetric_hysteresis": 1.0}, "paper_identification", seed=5)

@@ -122,6 +122,34 @@ def test_dead_zone_rows_are_read_at_the_sensor_behind_a_delay():
     assert dz.support(_sig(duty, goes_on), {"cracking_pct": 42.0}, before, 0.5, chain) is not None
 
 
+def test_dead_zone_jump_between_two_samples_of_a_breath_shows_the_law():
+    # breaths rising some 2 % per sample through a 42 % cracking duty, 30 ms late: the jump falls
+    # between two samples of each rise, where a PI fitted without the law puts a steep opening of
+    # its own, so the model before it predicts no flow where the law shuts the valve
+    dz, chain = VOCABULARY["dead_zone"], {"transport_delay": {"delay_s": 0.03}}
+    rng = np.random.default_rng(4)
+    t = np.arange(30000) / 100.0
+    phase, breath = t % 3.0, (t // 3.0).astype(int)
+    peak = rng.uniform(30.0, 40.0, breath[-1] + 1)[breath]  # each rise sampled at other duties
+    duty = np.where(phase < 1.0, 30 + peak * np.clip(phase / 0.2, 0, 1), 30.0)
+
+    def late(q):
+        return fx.delayed(q, 100.0, 0.03)
+
+    cracking = np.where(duty <= 42, 0.0, (duty - 35) * 4)  # 28 L/min at once
+    absorbed = late(cracking)  # the model before it: the jump as a steep opening of its PI
+    sig = _sig(duty, absorbed + rng.normal(0, 0.5, len(t)))
+    assert dz.support(sig, {"cracking_pct": 42.0}, absorbed, 0.5, chain) is None
+    # a valve opening by itself at 42 %, steeply but from zero flow: no jump, no cracking duty
+    steep = late(np.clip((duty - 42) * 20, 0, None))
+    sig = _sig(duty, steep + rng.normal(0, 0.5, len(t)))
+    assert dz.support(sig, {"cracking_pct": 42.0}, steep, 0.5, chain) is not None
+    # nor at any duty of a valve opening by itself at 38 %
+    smooth = late(np.clip((duty - 38) * 4, 0, None))
+    sig = _sig(duty, smooth + rng.normal(0, 0.5, len(t)))
+    assert not any(dz._opens_with_jump(sig, {"cracking_pct": c}, chain) for c in np.arange(32.0, 60.0, 0.5))
+
+
 def _holds(levels, rows=300):
     """A duty holding each of ``levels`` (%) for ``rows`` rows, in order."""
     return np.repeat(np.asarray(levels, float), rows)
