@@ -238,6 +238,42 @@ def test_gross_dead_zone_behind_a_delay_on_breaths():
     assert named["transport_delay"].params["delay_s"] == pytest.approx(0.04, rel=0.2)
 
 
+def test_a_valve_opening_by_itself_on_breaths_shows_no_jump():
+    # plant_sim's valve opens from zero flow with a steep start that flattens (some 4 then 2 L/min
+    # per % duty): breaths sampling that start coarsely show no cracking duty at any duty
+    from models.diagnose.signals import work_signals
+    from models.diagnose.words import VOCABULARY
+
+    dz = VOCABULARY["dead_zone"]
+    for seed in (3, 4, 5, 6):
+        sig = work_signals(_plant_recording({}, "breaths", 300.0, seed))
+        grid = dz.grid(sig, None)["cracking_pct"]
+        assert not [c for c in grid if dz._opens_with_jump(sig, {"cracking_pct": c}, {})], seed
+
+
+@pytest.mark.slow
+def test_dead_zone_a_fitted_pi_absorbs_is_not_identifiable():
+    # a 45 % cracking duty behind a 40 ms lag on breaths resting at 42 %: the valve is shut at rest
+    # and opens with a jump a PI fitted on the recording makes a steep opening of its own, and the
+    # lag explains the rest to within the noise: not identifiable without a model of the valve
+    duty = F.excitation("breaths", 5)
+    rng = np.random.default_rng(5)
+
+    from models.recording import Recording
+
+    def rec(effects):
+        q = F.flow_of(effects, duty, 5)[0] + rng.normal(0.0, 0.5, len(duty))
+        return Recording("<breaths>", {"t_s": np.arange(len(duty)) / F.RATE_HZ, "duty_pct": duty, "flow_lpm": q})
+
+    d = diagnose_response(rec({"dead_zone": 45.0, "valve_dynamics": 0.04}))
+    assert [f.effect for f in d.findings if f.alternative_to is None] == ["valve_dynamics"]
+    why = d.model["not_identifiable"]["dead_zone"]
+    assert "jump" in why and "--model" in why
+    # the lag alone opens from zero flow at rest: nothing said of a dead zone
+    d = diagnose_response(rec({"valve_dynamics": 0.04}))
+    assert "dead_zone" not in d.model["not_identifiable"]
+
+
 @pytest.mark.slow
 def test_gross_heating_with_asymmetry():
     # each refined once more with the other in place: neither takes up part of the other

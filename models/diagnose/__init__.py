@@ -39,8 +39,8 @@ from ..metrics import Metrics, metrics
 from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
-from .design import build, clip, fit_baseline, fit_final, fixed_base, unbend
-from .detectors import AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, select_effects
+from .design import build, clip, cross_validate, fit_baseline, fit_final, fixed_base, unbend
+from .detectors import AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, misfit, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
 from .signals import Signals, noise_lpm, raw_signals, running_rows, work_signals
@@ -148,6 +148,11 @@ class Diagnosis:
 VISIBLE = 0.5
 
 
+#: Once the named words are in place, a held-out misfit (RMS) within this factor of the sensor noise
+#: leaves nothing for another law to explain.
+EXPLAINED = 1.1
+
+
 def _rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e)))
 
@@ -206,7 +211,8 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
                       "caveats": {f.effect: c for f in findings if (c := VOCABULARY[f.effect].caveat(f.params))},
                       "holdout": metrics(y[hold], augmented[hold]).to_dict()},
         "rejected": {w: explain(d) for w, d in last.items() if w not in named},
-        "not_identifiable": {**sel.not_identifiable, **_invisible(sel, named, base, sig, folds)},
+        "not_identifiable": {**sel.not_identifiable, **_invisible(sel, named, base, sig, folds),
+                             **_absorbed(sel, named, base, sig, folds)},
         "trace": [d.to_dict() for d in trace],
         "validation": {"holdout_fraction": float(np.mean(hold)), "cv_folds": folds.k,
                        "blocks": len(folds.block_fold), "block_s": float(np.diff(folds.block_edges_s)[0]),
@@ -341,6 +347,23 @@ def _invisible(sel: Selection, named: set, base, sig: Signals, folds: Folds) -> 
             out[w] = (f"not identifiable on this excitation: at {size} it changes the prediction by "
                       f"{shown:.3g} L/min RMS beyond what the baseline absorbs, under {VISIBLE:g} x the noise "
                       f"({noise:.3g} L/min)")
+    return out
+
+
+def _absorbed(sel: Selection, named: set, base, sig: Signals, folds: Folds) -> dict:
+    """The words not named whose law's signature the recording shows (:meth:`Word.absorbed`) while
+    the named words, on a baseline fitted on the recording, explain it to within the noise
+    (:data:`EXPLAINED`): not identifiable against that baseline, rather than absent."""
+    if not base.refit:  # a model file held fixed absorbs nothing
+        return {}
+    chain = {w: p for w, p in sel.chain.items() if w in named}
+    cur = unbend(sel.reference, sig, chain, folds.train)
+    if misfit(cross_validate(build(cur, sig, chain), sig.flow_lpm, folds)) > EXPLAINED * noise_lpm(sig.flow_lpm):
+        return {}
+    out = {}
+    for w, word in VOCABULARY.items():
+        if w not in named and w not in sel.not_identifiable and (why := word.absorbed(sig, chain)):
+            out[w] = f"not identifiable against a baseline fitted on this recording: {why}"
     return out
 
 

@@ -174,6 +174,12 @@ class Word:
         past them."""
         return None
 
+    def absorbed(self, sig: Signals, chain: dict) -> str | None:
+        """Why the word, not named, cannot be told apart from a baseline fitted on the recording
+        although the recording shows its law's signature (asked only when ``chain``, the named
+        words, already explains the recording to within the noise), or ``None``."""
+        return None
+
     def implausible(self, phys: dict) -> str | None:
         """Why the reported parameters are not physical, or ``None``."""
         bad = [f"{k} = {phys[k]:.4g} outside {lo:g}..{hi:g} {self.units[k]}"
@@ -538,28 +544,47 @@ class DeadZone(Word):
         """A flow at the valve ``q`` at most this is zero within its noise (L/min)."""
         return 3.0 * signals.noise_lpm(q) + 0.01 * float(np.ptp(sig.flow_lpm))
 
+    def absorbed(self, sig, chain):
+        # a PI fitted on the recording that opens from zero flow steeply enough passes through the
+        # jump as well as the law does (a breath's rise crosses it within a sample or two, and a
+        # lag smooths it): the cracking duty is then seen only against a model of the valve
+        jumps = [c for c in self.grid(sig, None)["cracking_pct"]
+                 if self._opens_with_jump(sig, {"cracking_pct": c}, chain)]
+        if not jumps:
+            return None
+        return (f"the flow at the valve is zero below {max(jumps):.3g} % duty and opens with a jump above it (a "
+                f"cracking duty's signature), but a PI fitted on this recording opens as steeply and, with "
+                f"{', '.join(chain) or 'no effect'}, explains the recording to within the noise; give the "
+                f"simulation's model file (--model) to test it")
+
     def _opens_with_jump(self, sig: Signals, params: dict, chain: dict) -> bool:
         """Whether the flow at the valve is zero just below the cracking duty and opens with a jump
         just above it.
 
         Zero: 90 % of the rows within :data:`JUMP_BAND_PCT` below the cracking duty carry no flow
-        (a valve closing by itself a little below it still passes flow there). The jump: the flow
-        over twice that band above it, a straight line in the duty, extrapolated to the cracking
-        duty is well above zero. A valve opening by itself rises from zero flow there, however
-        steeply, and a coarse sampling of a fast rise does not move the line's intercept; a
-        cracking duty opens onto the flow the valve would already pass.
+        (a valve closing by itself a little below it still passes flow there). The jump: 90 % of
+        the rows within half that band above it carry flow, and the flow over twice the band above
+        it, a parabola in the duty, extrapolated to the cracking duty is well above zero. A valve
+        opening by itself rises from zero flow there, however steeply, and a coarse sampling of a
+        fast rise does not move the intercept; a cracking duty opens onto the flow the valve would
+        already pass. A parabola, because a valve's flow just above its own opening bends (a
+        straight line through a steep start that flattens meets the cracking duty above zero).
         """
         q = self._at_valve(sig, chain)
         zero = self._zero_lpm(sig, q)
         x, c = sig.duty_pct, params["cracking_pct"]
         below = (x > c - JUMP_BAND_PCT) & (x <= c)
         above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT)
-        if below.sum() < MIN_END_ROWS or above.sum() < MIN_END_ROWS or np.ptp(x[above]) < JUMP_BAND_PCT / 2:
+        # (a parabola needs duties spread over the band, not two held levels)
+        if below.sum() < MIN_END_ROWS or len(np.unique(x[above])) < 4 or np.ptp(x[above]) < JUMP_BAND_PCT:
             return False
         if float(np.percentile(np.abs(q[below]), 90)) > zero:
             return False
-        line = np.polynomial.polynomial.polyfit(x[above] - c, q[above], 1)
-        return float(line[0]) > zero
+        # (a parabola through a jump further up the band overshoots at its ends)
+        near = (x > c) & (x <= c + JUMP_BAND_PCT / 2)
+        if near.sum() < MIN_END_ROWS or float(np.percentile(q[near], 10)) <= zero:
+            return False
+        return float(np.polynomial.polynomial.polyfit(x[above] - c, q[above], 2)[0]) > zero
 
     def _jumps(self, sig: Signals, params: dict, chain: dict) -> bool:
         """Whether the flow at the valve jumps open just above the cracking duty.
