@@ -300,8 +300,10 @@ def _inside(params: dict, box: dict) -> bool:
 def _at_upper_bound(w: Word, params: dict, sig: Signals, base: Base) -> str | None:
     """Why an exact law refined onto the upper bound of its box is not resolved, or ``None``: it
     wanted more than its law can be (a heating whose time constant is four times the recording
-    shows none of its curvature, a slow drift read as heat; a coil twice its cold resistance)."""
-    box = w.bounds(sig, base) if w.is_exact(params) else {}
+    shows none of its curvature, a slow drift read as heat; a coil twice its cold resistance).
+    The box is the one :func:`refine` searched, the linearized law's time constant included: a
+    heating column whose time constant runs to four times the recording is a ramp in time."""
+    box = {k: v for k, v in w.bounds(sig, base).items() if k in params}
     over = [f"{k} = {params[k]:.4g} at the upper bound {hi:g} of its refinement" for k, (lo, hi) in box.items()
             if k in params and params[k] >= hi / AT_BOUND]
     return "; ".join(f"{o}: not resolved" for o in over) or None
