@@ -34,7 +34,7 @@ import numpy as np
 
 from .. import play
 from ..model import FittedModel
-from ..pi import PIModel, SlopeRows, fit_pi, fit_weights, fit_weights_on, regressors, thresholds
+from ..pi import PIModel, SlopeRows, fit_pi, fit_weights, fit_weights_on
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
@@ -52,8 +52,6 @@ BASELINE_N = 50
 SHAPE_MAX_OPERATORS = 1000
 #: A measured flow within this many times the sensor noise of zero is a valve shut by itself.
 SHUT_NOISE = 3.0
-#: Most active-set steps of the censored fit (:func:`censored_fit`; it settles in a few).
-CENSOR_ITERATIONS = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -525,16 +523,16 @@ def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
     """The paper's symmetric PI (Eq. 2-4, ``n`` operators, constrained) fitted on the training rows only,
-    those where the valve is shut by itself (:meth:`Base.shut`) censored at zero flow (:func:`censored_fit`)."""
+    but those where the valve is shut by itself (:meth:`Base.shut`: left to the no-reverse-flow floor)."""
     xs = Scaling.from_data(sig.duty_pct)
     ys = Scaling.from_data(sig.flow_lpm[folds.train])
     x_unit, y_unit = xs.to_unit(sig.duty_pct), ys.to_unit(sig.flow_lpm)
     shut = shut_rows(sig.flow_lpm)
-    r = thresholds(n, x_max=float(np.max(np.abs(x_unit))))
-    w, offset, _ = censored_fit(regressors(r, x_unit), y_unit, np.zeros((len(sig), 0)), folds.train, shut,
-                                float(ys.to_unit(0.0)))
-    core = PIModel(r=r, w=w, offset=offset)
     rows = folds.train & ~shut
+    core = fit_pi(x_unit, y_unit, n=n, rows=rows)
+    if shut.any():  # refitted with the shut rows where it has the valve open (censored rows)
+        rows = folds.train & ~(shut & (core.predict(x_unit)[0] <= ys.to_unit(0.0)))
+        core = fit_pi(x_unit, y_unit, n=n, rows=rows)
     model = FittedModel("pi", core, xs, ys, meta={"source": "fitted on the training rows", "n": n})
     return Base(True, model, core, xs, density(core, xs, sig, y_unit, rows))
 
@@ -543,14 +541,9 @@ def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndar
                  zero_unit: float, open_rows: SlopeRows | None = None) -> tuple:
     """:func:`models.pi.fit_weights` on ``rows`` where a valve shut by itself is censored at zero flow.
 
-    A shut row only says that the flow the valve would pass is at most zero: the loading curve may
-    run on below zero where the valve closes. Least squares on the open rows plus the squared
-    excess over zero of the shut rows (a one-sided, Tobit-like loss), solved by active sets: fitted
-    first without the shut rows, then again with those where the fit has the valve open, until
-    that set no longer changes. One step is not enough where the valve rests far below its opening
-    (breaths resting at 30 %): a fit on the open rows alone extrapolates the rest to an open valve
-    on every shut row, and pinning all of them to zero bends the loading curve along the memory
-    of the breaths' peaks, a slow drift of the residual that no physics left out explains.
+    A shut row only says that the flow the valve would pass is at most zero: fitted first without
+    the shut rows, then again with those where that fit has the valve open (one step of a Tobit
+    regression), so the loading curve may run on below zero where the valve closes.
 
     Parameters
     ----------
@@ -570,15 +563,13 @@ def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndar
     fr = rows & ~shut
     parts = [(open_rows or SlopeRows.of(Y[fr]), y_unit[fr], H[fr])]
     w, offset, coef = fit_weights_on(parts)
-    cand = np.flatnonzero(rows & shut)
-    active = np.zeros(len(cand), dtype=bool)
-    for _ in range(CENSOR_ITERATIONS):
-        now = Y[cand] @ w + offset + H[cand] @ coef > zero_unit
-        if np.array_equal(now, active):
-            break
-        active = now
-        on = cand[active]
-        w, offset, coef = fit_weights_on(parts + [(SlopeRows.of(Y[on]), y_unit[on], H[on])] if len(on) else parts)
+    over = rows & shut
+    if not over.any():
+        return w, offset, coef
+    over[over] = Y[over] @ w + offset + H[over] @ coef > zero_unit
+    if over.any():
+        parts.append((SlopeRows.of(Y[over]), y_unit[over], H[over]))
+        w, offset, coef = fit_weights_on(parts)
     return w, offset, coef
 
 
