@@ -32,6 +32,25 @@ def test_folds_spread_holdout_and_cover(duration, rate):
     assert np.array_equal(f.holdout_at(t), hold)
 
 
+@settings(max_examples=25, deadline=None)
+@given(start=st.floats(0.0, 30.0))
+def test_rows_before_the_start_are_neither_fitted_nor_scored(start):
+    t = np.arange(0.0, 300.0, 0.01)
+    f = make_folds(t, start_s=start)
+    first_block_end = f.block_edges_s[1]
+    before = t < min(start, first_block_end)  # at most the first block is left out
+    assert not np.any(f.train[before] | f.holdout[before] | f.holdout_at(t)[before])
+    assert not np.any((f.fold >= 0)[before])
+    # the cross-validation blocks cover exactly the rows of the folds
+    cv = np.zeros(len(t), dtype=bool)
+    for rows, _ in f.cv_blocks():
+        cv[rows] = True
+    assert np.array_equal(cv, f.fold >= 0) and f.cv_rows().sum() == cv.sum()
+    # after the start the assignment is the one without it
+    g = make_folds(t)
+    assert np.array_equal(f.fold[~before], g.fold[~before]) and np.array_equal(f.holdout_at(t)[~before], g.holdout[~before])
+
+
 def test_folds_refuse_too_short():
     with pytest.raises(ValueError, match="too short"):
         make_folds(np.arange(0.0, 5.0, 0.01))

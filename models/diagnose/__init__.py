@@ -39,7 +39,7 @@ from ..metrics import Metrics, metrics
 from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
-from .design import build, clip, cross_validate, fit_baseline, fit_final, fixed_base, unbend
+from .design import build, clip, cross_validate, fit_baseline, fit_final, fixed_base, memory_start_s, unbend
 from .detectors import AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, misfit, select_effects
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
@@ -185,7 +185,7 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
     raw = raw_signals(rec, rest)
     sig = work_signals(rec, rest)
     try:
-        folds = make_folds(sig.t_s)
+        folds = make_folds(sig.t_s, start_s=memory_start_s(sig))
     except ValueError as exc:
         raise InputError(f"{rec.path}: {exc}") from None
     base = fit_baseline(sig, folds) if model is None else fixed_base(model, sig)

@@ -8,7 +8,9 @@ fourth block forms the final holdout, never used to fit anything; the other
 blocks are dealt to ``k`` cross-validation folds, so each fold samples the
 whole recording rather than one end of it. Rows within ``guard_s`` of a block
 edge are left out of every fit, so that the zero-phase preprocessing filter
-cannot leak a held-out measurement into a training row.
+cannot leak a held-out measurement into a training row. Rows before
+``start_s`` (the initial loading curve, :func:`models.diagnose.design.memory_start_s`)
+belong to no fold and no holdout: they are neither fitted nor scored.
 """
 from __future__ import annotations
 
@@ -26,6 +28,8 @@ BLOCKS_PER_SET = 4
 MIN_BLOCK_S = 2.0
 #: Rows this close (s) to a block edge are not fitted on.
 GUARD_S = 0.25
+#: Fold of the rows before the start: neither fitted nor scored.
+UNSCORED = -2
 
 
 @dataclass(frozen=True)
@@ -35,9 +39,10 @@ class Folds:
     Attributes
     ----------
     block : ndarray of int, shape (N,)
-        Block index of each row.
+        Block index of each row (``-1`` before the start).
     fold : ndarray of int, shape (N,)
-        ``-1`` for final holdout rows, else the cross-validation fold 0..k-1.
+        ``-1`` for final holdout rows, :data:`UNSCORED` before the start, else the
+        cross-validation fold 0..k-1.
     fit_ok : ndarray of bool, shape (N,)
         False for rows within the guard of a block edge.
     k : int
@@ -46,6 +51,8 @@ class Folds:
         Block edges in seconds (to map the assignment to other sample grids).
     block_fold : ndarray of int, shape (B,)
         Fold of each block (``-1`` = holdout).
+    start_s : float
+        Rows before this time (s) are neither fitted nor scored.
     """
 
     block: np.ndarray
@@ -54,11 +61,12 @@ class Folds:
     k: int
     block_edges_s: np.ndarray
     block_fold: np.ndarray
+    start_s: float = -np.inf
 
     @property
     def holdout(self) -> np.ndarray:
         """Rows of the final holdout."""
-        return self.fold < 0
+        return self.fold == -1
 
     @property
     def train(self) -> np.ndarray:
@@ -86,7 +94,7 @@ class Folds:
     def holdout_at(self, t_s: np.ndarray) -> np.ndarray:
         """Holdout flag for samples at times ``t_s`` (any rate) from the block edges."""
         b = np.clip(np.searchsorted(self.block_edges_s, t_s, side="right") - 1, 0, len(self.block_fold) - 1)
-        return self.block_fold[b] < 0
+        return (self.block_fold[b] < 0) & (t_s >= self.start_s)
 
 
 def make_folds(
@@ -96,6 +104,7 @@ def make_folds(
     blocks_per_set: int = BLOCKS_PER_SET,
     min_block_s: float = MIN_BLOCK_S,
     guard_s: float = GUARD_S,
+    start_s: float | None = None,
 ) -> Folds:
     """Cut the time axis into blocks and deal them to holdout and ``k`` folds.
 
@@ -111,6 +120,10 @@ def make_folds(
         Wanted number of blocks in each fold; fewer when the recording is short.
     min_block_s, guard_s : float
         Shortest block and edge guard (s).
+    start_s : float, optional
+        Rows before this time (s) belong to no fold and no holdout; the blocks are laid over the
+        whole recording all the same (the first block keeps only its rows from the start on). At
+        most the first block is left out, so that every fold keeps all its blocks.
 
     Raises
     ------
@@ -144,4 +157,8 @@ def make_folds(
             j += 1
     dist = np.minimum(t_s - edges[block], edges[block + 1] - t_s)
     fit_ok = dist >= guard_s
-    return Folds(block, block_fold[block], fit_ok, k, edges, block_fold)
+    fold = block_fold[block]
+    start_s = -np.inf if start_s is None else min(float(start_s), float(edges[1]))
+    before = t_s < start_s
+    block[before], fold[before], fit_ok[before] = -1, UNSCORED, False
+    return Folds(block, fold, fit_ok, k, edges, block_fold, start_s)
