@@ -321,3 +321,26 @@ def test_a_model_file_with_thousands_of_operators_enters_the_refits_through_a_sm
         base = fixed_base(model, sig)
         assert base.model is model
         assert len(base.shape.r) == (n if own else BASELINE_N + 1)  # fit_pi's n + 1 thresholds, r_0 = 0
+
+
+def test_the_clip_acts_at_the_valve_before_the_lag():
+    # a valve clipped at its full-open flow, seen through a 40 ms lag: the sensor sees the clipped flow
+    # lagged, rising to the plateau from below and leaving it along the lag. The design's prediction is
+    # that flow, not the lagged flow clipped at the sensor
+    from models.diagnose.design import build, cross_validate, fixed_base, simulated
+    from models.diagnose.signals import Signals
+    from models.model import load_model
+
+    model = load_model("config/valve_model.json")
+    rate_hz, tau_s = 100.0, 0.04
+    t = np.arange(6000) / rate_hz
+    duty = np.repeat(np.random.default_rng(4).uniform(0.0, 100.0, 60), 100)  # 1 s holds over the range
+    valve = simulated(model, duty, rate_hz)
+    full_open = 0.6 * float(valve.max())
+    lagged = fx.first_order_lag(np.clip(valve, 0.0, full_open), rate_hz, tau_s)
+    assert np.abs(np.minimum(fx.first_order_lag(valve, rate_hz, tau_s), full_open) - lagged).max() > 5.0
+    sig = Signals(t, duty, lagged, None, None, rate_hz)
+    chain = {"valve_dynamics": {"tau_s": tau_s, "phase": 1.0}, "saturation": {"full_open_lpm": full_open}}
+    d = build(fixed_base(model, sig), sig, chain)
+    np.testing.assert_allclose(d.predict(np.zeros(0)), lagged, atol=1e-9)
+    assert np.all(cross_validate(d, lagged, make_folds(t)).test < 1e-12)

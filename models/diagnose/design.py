@@ -3,7 +3,12 @@
 For fixed nonlinear parameters every word of :mod:`models.diagnose.words`
 keeps the model linear in its remaining unknowns, so the augmented model is::
 
-    q(t) = min(F(t) + X(t) theta, q_sat)
+    q(t) = D[clip(F_v(t) + X_v(t) theta_v)] + X_s(t) theta_s
+
+with ``D`` the chain's time response (delay, lag), ``clip`` the valve's
+full-open flow (saturation) and its no-reverse-flow floor, both at the valve
+as the valve clips, and ``X_s`` the columns at the sensor; without a time
+response it is ``clip(F + X theta)``.
 
 :func:`build` asks each word in the chain for its part: the duty the
 hysteresis core sees (a warm coil's effective duty) and the lift of its
@@ -39,7 +44,7 @@ from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
 from .signals import Signals, noise_lpm
-from .words import VOCABULARY, Columns
+from .words import VOCABULARY, Columns, Word
 
 #: Relative ridge on the normal equations (keeps a column that is all zero harmless).
 RIDGE = 1e-10
@@ -294,12 +299,18 @@ class Design:
         Column names: ``gain``, ``offset``, ``loop_width`` and ``duty_scale`` (refitted baseline),
         then effect words.
     fit_ok : ndarray of bool
-        Rows the fit may use (saturated rows are left to the clip, shut rows to the floor).
+        Rows the fit may use (saturated rows are left to the clip, shut rows to the floor; all, with
+        :attr:`valve`, whose linearized columns leave them there).
     clip_hi : float or None
         Full-open flow (L/min) the prediction is clipped to.
     floor : bool
         No reverse flow: the prediction is clipped at zero (a PI fitted on a recording where the
         valve shuts by itself; its loading curve runs on below zero where the valve closes).
+    valve : Valve or None
+        The flow at the valve, where a clipped chain with a time response clips it; ``F`` and the
+        first ``valve.X.shape[1]`` columns of ``X`` are then that flow linearized at the clip's and
+        the floor's active set, seen at the sensor (:func:`build`). ``None``: the clip acts on
+        ``F + X theta`` (no time response, or nothing clipped).
     """
 
     F: np.ndarray
@@ -308,6 +319,7 @@ class Design:
     fit_ok: np.ndarray
     clip_hi: float | None = None
     floor: bool = False
+    valve: "Valve | None" = None
 
     @property
     def clipped(self) -> bool:
@@ -316,9 +328,34 @@ class Design:
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
         """``min(F + X theta, clip_hi)``, at least 0 with the floor, for one ``theta`` (p,) or several
-        (p, K) -> (N,) or (N, K)."""
-        q = (self.F if theta.ndim == 1 else self.F[:, None]) + self.X @ theta
-        return clip(q, self.clip_hi, self.floor)
+        (p, K) -> (N,) or (N, K); with :attr:`valve`, the flow at the valve clipped so, then through
+        the chain's time response, plus the sensor-side columns."""
+        if self.valve is None:
+            q = (self.F if theta.ndim == 1 else self.F[:, None]) + self.X @ theta
+            return clip(q, self.clip_hi, self.floor)
+        v = self.valve
+        pv = v.X.shape[1]
+        q = (v.F if theta.ndim == 1 else v.F[:, None]) + v.X @ theta[:pv]
+        return v.dynamics(clip(q, self.clip_hi, self.floor)) + self.X[:, pv:] @ theta[pv:]
+
+
+@dataclass(frozen=True, eq=False)
+class Valve:
+    """The flow at the valve of a :class:`Design`: after the dead zone, before the time response.
+
+    Attributes
+    ----------
+    F : ndarray, shape (N,)
+        Fixed part (L/min).
+    X : ndarray, shape (N, p_v)
+        The design's columns at the valve (its first ``p_v``).
+    dynamics : callable
+        The chain's time response (delay, lag), on a flow (N,) or several (N, K).
+    """
+
+    F: np.ndarray
+    X: np.ndarray
+    dynamics: object
 
 
 def clip(q: np.ndarray, clip_hi: float | None, floor: bool) -> np.ndarray:
@@ -351,32 +388,55 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         cols += [F, np.ones(n), loop, slope]
         names += ["gain", "offset", "loop_width", "duty_scale"]
         F = np.zeros(n)
-    at_valve = Columns(sig, ref, lift, slope)
+    valve_ctx = Columns(sig, ref, lift, slope)
     for w, p in chain.items():
-        for col in VOCABULARY[w].valve_columns(at_valve, p):
+        for col in VOCABULARY[w].valve_columns(valve_ctx, p):
             cols.append(col)
             names.append(w)
-    X = at_sensor(np.column_stack(cols) if cols else np.zeros((n, 0)), sig, chain)
-    # one pass through the dynamics each: with a refitted baseline the reference is the gain column
-    # and the fixed part stays zero (zero flow through a dead zone, delay and lag); a fixed baseline's
-    # prediction is both the fixed part and the reference
-    ref = X[:, 0] if base.refit else at_sensor(ref, sig, chain)
-    if not base.refit:
-        F = ref
-    at_sens = Columns(sig, at_valve.flow_lpm, lift, slope, ref)
+    Xv = at_valve(np.column_stack(cols) if cols else np.zeros((n, 0)), sig, chain)
+    ref_v = Xv[:, 0] if base.refit else at_valve(ref, sig, chain)
+    F_v = F if base.refit else ref_v
+    clip_hi = clip_of(chain)
+    shut = base.shut(sig)
+    floor = bool(shut.any())
+    if (clip_hi is not None or floor) and has_dynamics(chain):
+        # the valve's full-open stop and its no-reverse-flow floor act on the flow at the valve, and
+        # the sensor sees the clipped flow through the delay and lag: a lagged flow rises to the
+        # plateau from below and leaves a shut valve from zero, not from where a PI's loading curve
+        # runs on below it. Linearized at the reference's active set: rows where the reference reaches
+        # the full-open flow hold it, rows where it has the valve closed hold zero (the sensor cannot
+        # say which valve rows were shut: it sees a closing valve's flow decay for several time
+        # constants), the others are free; every row at the sensor is fitted on the free rows' columns
+        # through the time response
+        held = np.zeros(n, dtype=bool) if clip_hi is None else ref_v >= clip_hi
+        free = ~(held | (floor & (ref_v <= 0.0)))
+        valve = Valve(F_v, Xv, lambda v: through_dynamics(v, sig, chain))
+        X = through_dynamics(Xv * free[:, None], sig, chain)
+        F = through_dynamics(np.where(free, F_v, np.where(held, clip_hi or 0.0, 0.0)), sig, chain)
+        ref = through_dynamics(ref_v, sig, chain)
+    else:
+        valve = None
+        X = through_dynamics(Xv, sig, chain)
+        # one pass through the dynamics each: with a refitted baseline the reference is the gain
+        # column and the fixed part stays zero (zero flow through a dead zone, delay and lag); a
+        # fixed baseline's prediction is both the fixed part and the reference
+        ref = X[:, 0] if base.refit else through_dynamics(ref_v, sig, chain)
+        if not base.refit:
+            F = ref
+    sensor_ctx = Columns(sig, valve_ctx.flow_lpm, lift, slope, ref)
     extra = []
     for w, p in chain.items():
-        for col in VOCABULARY[w].sensor_columns(at_sens, p):
+        for col in VOCABULARY[w].sensor_columns(sensor_ctx, p):
             extra.append(col)
             names.append(w)
     if extra:
         X = np.hstack([X, np.column_stack(extra)])
-    clip_hi = clip_of(chain)
+    if valve is not None:
+        return Design(F, X, tuple(names), np.ones(n, dtype=bool), clip_hi, floor, valve)
     fit_ok = np.ones(n, dtype=bool) if clip_hi is None else ref < clip_hi
-    shut = base.shut(sig)
     # a shut row is left to the floor where the baseline has its valve closed too (a censored
     # row: its flow says only that the prediction is at most zero), and fitted where it has flow
-    return Design(F, X, tuple(names), fit_ok & ~(shut & (ref <= 0.0)), clip_hi, bool(shut.any()))
+    return Design(F, X, tuple(names), fit_ok & ~(shut & (ref <= 0.0)), clip_hi, floor)
 
 
 def clip_of(chain: dict) -> float | None:
@@ -388,27 +448,53 @@ def clip_of(chain: dict) -> float | None:
 def _fit_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
     """Rows a PI refitted under ``chain`` may fit on, as :func:`build` leaves them to a design: those
     the chain's saturation leaves unclipped, less the shut rows where the base has its valve closed
-    too (by the base's own prediction at the sensor).
+    too (by the base's own prediction at the sensor); behind a time response, less the rows whose
+    flow at the sensor carries the clip or the floor at the valve (the PI's operators are not
+    clipped).
 
     The same rows whether or not a column is fitted jointly with the PI: a test's gain is then its
     column's, not that of a PI fitted on other rows (on breaths resting below the valve's opening,
     two thirds of the rows are shut, and which of them a fit keeps moved the held-out error by 10 %).
     """
-    ref = at_sensor(base.predict(sig, chain), sig, chain)
+    ref_v = at_valve(base.predict(sig, chain), sig, chain)
+    ref = through_dynamics(ref_v, sig, chain)
     c = clip_of(chain)
     ok = np.ones(len(sig), dtype=bool) if c is None else ref < c
-    return ok & ~(base.shut(sig) & (ref <= 0.0))
+    shut = base.shut(sig)
+    ok &= ~(shut & (ref <= 0.0))
+    if (c is not None or shut.any()) and has_dynamics(chain):
+        # the PI's operators run on unclipped through the time response: not the rows whose flow at
+        # the sensor still carries, by more than the noise, the valve's clip or floor (the lagged
+        # descent from the plateau, the onset from a closed valve)
+        clipped = through_dynamics(clip(ref_v, c, bool(shut.any())), sig, chain)
+        ok &= np.abs(clipped - ref) <= noise_lpm(sig.flow_lpm)
+    return ok
 
 
 def at_sensor(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
     """A flow at the valve (or every column of one) as the sensor sees it: dead zone, then
     transport delay and lag."""
+    return through_dynamics(at_valve(v, sig, chain), sig, chain)
+
+
+def at_valve(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
+    """A flow (or every column of one) through the chain's dead zone: the flow the valve passes."""
     gain = flow_gain(sig, chain)
     if gain is not None:
         v = v * (gain if v.ndim == 1 else gain[:, None])
+    return v
+
+
+def through_dynamics(v: np.ndarray, sig: Signals, chain: dict) -> np.ndarray:
+    """A flow at the valve (N,), or several (N, K), through the chain's transport delay and lag."""
     for w, p in chain.items():
         v = VOCABULARY[w].dynamics(v, sig.rate_hz, p)
     return v
+
+
+def has_dynamics(chain: dict) -> bool:
+    """Whether a word of ``chain`` has a time response (delay, lag)."""
+    return any(type(VOCABULARY[w]).dynamics is not Word.dynamics for w in chain)
 
 
 @dataclass(frozen=True)
@@ -530,11 +616,16 @@ def cross_validate(design: Design, y: np.ndarray, folds: Folds) -> CVResult:
         Aa, ba, ca = G[:, :p, :p], G[:, :p, p], G[:, p, p]
         # sse[k, j] for theta_k on fold j
         sse = ca[None, :] - 2.0 * (theta.T @ ba.T) + np.einsum("pk,jpq,qk->kj", theta, Aa, theta)
-    else:
+    elif design.valve is None:
         sse = np.zeros((K, K))
         for rows, j in blocks:
             q = clip(design.F[rows, None] + X[rows] @ theta, design.clip_hi, design.floor)
             sse[:, j] += ((q - y[rows, None]) ** 2).sum(axis=0)
+    else:  # every fold's model through the time response at once, over the whole recording
+        e2 = (design.predict(theta) - y[:, None]) ** 2
+        sse = np.zeros((K, K))
+        for rows, j in blocks:
+            sse[:, j] += e2[rows].sum(axis=0)
     return CVResult(sse, folds.cv_rows())
 
 
@@ -655,8 +746,12 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
         return base
     if any(VOCABULARY[w].joint_with_pi and not VOCABULARY[w].is_exact(p) for w, p in chain.items()):
         d = build(base, sig, chain)
-        H = d.X[:, [i for i, w in enumerate(d.names) if w in chain and VOCABULARY[w].joint_with_pi]]
-        fit_ok = d.fit_ok
+        joint = [i for i, w in enumerate(d.names) if w in chain and VOCABULARY[w].joint_with_pi]
+        H = d.X[:, joint]
+        if d.valve is not None:  # the PI's operators are not clipped at the valve: nor are its columns
+            pv = d.valve.X.shape[1]
+            H = np.column_stack([d.valve.dynamics(d.valve.X[:, i]) if i < pv else d.X[:, i] for i in joint])
+        fit_ok = d.fit_ok if d.valve is None else _fit_rows(base, sig, chain)
     else:  # the exact laws are in the operators: no column to fit jointly
         H, fit_ok = np.zeros((len(sig), 0)), _fit_rows(base, sig, chain)
     # the shut rows of a dead zone say nothing of the PI
