@@ -465,3 +465,40 @@ def test_gross_saturation_with_heating_names_no_dead_zone():
     assert {f.effect for f in d.findings if f.alternative_to is None} == {"saturation", "coil_heating"}
     for f in d.findings:
         assert f.holdout_rmse_after < f.holdout_rmse_before
+
+
+def test_rows_left_to_a_clip_are_chosen_by_the_measured_plateau():
+    # a coil warming beside a clip at 130 L/min: rows measured below the plateau are fitted whatever
+    # the heating's rise and time constant, and the plateau rows are the same for every setting
+    # (chosen by the prediction, the fitted rows moved with the heating and its refinement stalled).
+    # Behind a lag the plateau is the valve's, recovered through the lag: the lagged rise to it is
+    # left to the clip at the valve too
+    from models.diagnose import effects as fx
+    from models.diagnose.design import PLATEAU_NOISE, build, fit_baseline, fit_final, unbend
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import noise_lpm, work_signals
+
+    sig = work_signals(_plant_recording({"saturation": 130.0, "coil_heating": 30.0}, "paper_identification", 120.0))
+    folds = make_folds(sig.t_s)
+    root = fit_baseline(sig, folds)
+    top = sig.flow_lpm >= 130.0 - PLATEAU_NOISE * noise_lpm(sig.flow_lpm)
+    assert 0.01 < top.mean() < 0.5
+    below = ~top & ~root.shut(sig)
+    for rise, tau in ((5.0, 60.0), (30.0, 180.0), (80.0, 400.0)):
+        chain = {"coil_heating": {"rise55_k": rise, "tau_s": tau, "start": 0.0}, "saturation": {"full_open_lpm": 130.0}}
+        b = unbend(root, sig, chain, folds.train)
+        assert np.array_equal(b.plateau(sig, chain)[0], top)
+        assert build(b, sig, chain).fit_ok[below].all()
+    # behind a 40 ms lag: the plateau is the valve's, recovered through the lag (the valve is at its
+    # stop before the sensor shows it), and the prediction never passes the clip on the lagged rise
+    sig = work_signals(_plant_recording({"saturation": 130.0, "valve_dynamics": 0.04}, "paper_identification", 120.0))
+    folds = make_folds(sig.t_s)
+    root = fit_baseline(sig, folds)
+    lag = {"tau_s": 0.04, "phase": 1.0}
+    chain = {"valve_dynamics": lag, "saturation": {"full_open_lpm": 130.0}}
+    at_valve, at_sensor = root.plateau(sig, chain)[0], root.plateau(sig, chain, valve=False)[0]
+    assert at_valve.sum() > at_sensor.sum() > 0
+    assert fx.first_order_lag(at_valve.astype(float), sig.rate_hz, lag["tau_s"])[at_sensor].mean() > 0.9
+    b = unbend(root, sig, chain, folds.train)
+    d = build(b, sig, chain)
+    assert d.predict(fit_final(d, sig.flow_lpm, folds.train)).max() <= 130.0

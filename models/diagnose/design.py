@@ -57,6 +57,9 @@ BASELINE_N = 50
 SHAPE_MAX_OPERATORS = 1000
 #: A measured flow within this many times the sensor noise of zero is a valve shut by itself.
 SHUT_NOISE = 3.0
+#: A flow within this many times the sensor noise of the full-open flow, or above it, is at the
+#: plateau: the flow the valve would pass there is only known to be at least the full-open flow.
+PLATEAU_NOISE = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,6 +133,33 @@ class Base:
         if not self.refit:
             return np.zeros(len(sig), dtype=bool)
         return self.root._cached(("shut", id(sig)), lambda: shut_rows(sig.flow_lpm))
+
+    def plateau(self, sig: Signals, chain: dict, valve: bool = True) -> tuple:
+        """The rows whose flow, as measured, is at the plateau of the chain's saturation, and the flow
+        (L/min) a prediction must reach on each for the row to be left to the clip:
+        ``(plateau, reach_lpm)``; no rows without a saturation.
+
+        ``valve``: the flow at the valve, recovered from the measured flow through the chain's time
+        response (its noise with it), else the flow at the sensor. A plateau row only says that the
+        valve would pass at least the full-open flow: a fit that falls short of it there is pulled up
+        by the row, one that reaches it leaves the row to the clip, and a row measured below the
+        plateau is always fitted (chosen by a prediction, the rows left to the clip moved with a
+        heating's rise and time constant, and its refinement stalled on a rugged training error).
+        Where the root baseline (the PI fitted through the plateau, or the model file's simulation)
+        reaches the full-open flow, a prediction within the plateau's noise band below it counts as
+        reaching it: a PI fitted without the plateau runs on flat just below it (breaths that hold
+        their top duties clipped), and rows fitted there bend it flat into the plateau.
+        """
+        c = clip_of(chain)
+        if c is None:
+            return np.zeros(len(sig), dtype=bool), np.full(len(sig), np.inf)
+        flow = sig.flow_lpm
+        if valve:
+            for w, p in reversed(chain.items()):
+                flow = VOCABULARY[w].undo(flow, sig.rate_hz, p)
+        band = PLATEAU_NOISE * noise_lpm(flow)
+        reach = np.where(self.root.predict(sig, {}) >= c, c - band, c)
+        return flow >= c - band, reach
 
     def bends(self, sig: Signals) -> tuple:
         """Loop offset, descending lift and ``x dq/dx`` (all L/min) of the root baseline on ``sig``'s duty:
@@ -299,8 +329,9 @@ class Design:
         Column names: ``gain``, ``offset``, ``loop_width`` and ``duty_scale`` (refitted baseline),
         then effect words.
     fit_ok : ndarray of bool
-        Rows the fit may use (saturated rows are left to the clip, shut rows to the floor; all, with
-        :attr:`valve`, whose linearized columns leave them there).
+        Rows the fit may use (rows at the plateau the prediction reaches are left to the clip
+        (:meth:`Base.plateau`), shut rows to the floor; all, with :attr:`valve`, whose linearized
+        columns leave them there).
     clip_hi : float or None
         Full-open flow (L/min) the prediction is clipped to.
     floor : bool
@@ -407,8 +438,10 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         # the full-open flow hold it, rows where it has the valve closed hold zero (the sensor cannot
         # say which valve rows were shut: it sees a closing valve's flow decay for several time
         # constants), the others are free; every row at the sensor is fitted on the free rows' columns
-        # through the time response
-        held = np.zeros(n, dtype=bool) if clip_hi is None else ref_v >= clip_hi
+        # through the time response. The rows held at the plateau are those measured there
+        # (:meth:`Base.plateau`, at the valve)
+        top, reach = base.plateau(sig, chain)
+        held = top & (ref_v >= reach)
         free = ~(held | (floor & (ref_v <= 0.0)))
         valve = Valve(F_v, Xv, lambda v: through_dynamics(v, sig, chain))
         X = through_dynamics(Xv * free[:, None], sig, chain)
@@ -433,10 +466,10 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
         X = np.hstack([X, np.column_stack(extra)])
     if valve is not None:
         return Design(F, X, tuple(names), np.ones(n, dtype=bool), clip_hi, floor, valve)
-    fit_ok = np.ones(n, dtype=bool) if clip_hi is None else ref < clip_hi
-    # a shut row is left to the floor where the baseline has its valve closed too (a censored
-    # row: its flow says only that the prediction is at most zero), and fitted where it has flow
-    return Design(F, X, tuple(names), fit_ok & ~(shut & (ref <= 0.0)), clip_hi, floor)
+    # a censored row, whose measured flow only bounds the flow the valve would pass, is left to the
+    # floor or the clip where the baseline reaches that bound too, and fitted where it does not
+    top, reach = base.plateau(sig, chain)
+    return Design(F, X, tuple(names), ~((shut & (ref <= 0.0)) | (top & (ref >= reach))), clip_hi, floor)
 
 
 def clip_of(chain: dict) -> float | None:
@@ -446,11 +479,11 @@ def clip_of(chain: dict) -> float | None:
 
 
 def _fit_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
-    """Rows a PI refitted under ``chain`` may fit on, as :func:`build` leaves them to a design: those
-    the chain's saturation leaves unclipped, less the shut rows where the base has its valve closed
-    too (by the base's own prediction at the sensor); behind a time response, less the rows whose
-    flow at the sensor carries the clip or the floor at the valve (the PI's operators are not
-    clipped).
+    """Rows a PI refitted under ``chain`` may fit on: all but the shut rows where the base has its
+    valve closed too (by the base's own prediction at the sensor); behind a time response, less the
+    rows whose flow at the sensor carries the clip or the floor at the valve (the PI's operators are
+    not clipped). The plateau rows of a saturation are chosen within the PI's own fit
+    (:func:`censored_fit`).
 
     The same rows whether or not a column is fitted jointly with the PI: a test's gain is then its
     column's, not that of a PI fitted on other rows (on breaths resting below the valve's opening,
@@ -459,9 +492,8 @@ def _fit_rows(base: Base, sig: Signals, chain: dict) -> np.ndarray:
     ref_v = at_valve(base.predict(sig, chain), sig, chain)
     ref = through_dynamics(ref_v, sig, chain)
     c = clip_of(chain)
-    ok = np.ones(len(sig), dtype=bool) if c is None else ref < c
     shut = base.shut(sig)
-    ok &= ~(shut & (ref <= 0.0))
+    ok = ~(shut & (ref <= 0.0))
     if (c is not None or shut.any()) and has_dynamics(chain):
         # the PI's operators run on unclipped through the time response: not the rows whose flow at
         # the sensor still carries, by more than the noise, the valve's clip or floor (the lagged
@@ -655,12 +687,16 @@ def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
 
 
 def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndarray, shut: np.ndarray,
-                 zero_unit: float, open_rows: SlopeRows | None = None) -> tuple:
-    """:func:`models.pi.fit_weights` on ``rows`` where a valve shut by itself is censored at zero flow.
+                 zero_unit: float, open_rows: SlopeRows | None = None, plateau: np.ndarray | None = None,
+                 reach_unit: np.ndarray | None = None) -> tuple:
+    """:func:`models.pi.fit_weights` on ``rows`` where a valve shut by itself is censored at zero flow,
+    and one at the plateau of a saturation at the full-open flow.
 
-    A shut row only says that the flow the valve would pass is at most zero: fitted first without
-    the shut rows, then again with those where that fit has the valve open (one step of a Tobit
-    regression), so the loading curve may run on below zero where the valve closes.
+    A shut row only says that the flow the valve would pass is at most zero, a plateau row that it
+    is at least the full-open flow: fitted first without them, then again with the shut rows where
+    that fit has the valve open and the plateau rows where it falls short of the full-open flow
+    (one step of a Tobit regression), so the loading curve may run on below zero where the valve
+    closes and above the full-open flow where the valve is clipped.
 
     Parameters
     ----------
@@ -675,17 +711,24 @@ def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndar
     zero_unit : float
         Zero flow, normalized.
     open_rows : SlopeRows, optional
-        ``SlopeRows.of(Y[rows & ~shut])`` when already formed (:meth:`Base.slope_rows`).
+        ``SlopeRows.of(Y[rows & ~shut & ~plateau])`` when already formed (:meth:`Base.slope_rows`).
+    plateau : ndarray of bool, shape (N,), optional
+        Rows whose measured flow is at the full-open flow (:meth:`Base.plateau`).
+    reach_unit : ndarray, shape (N,), optional
+        With ``plateau``: the flow (normalized) the first fit must reach on a plateau row for it to
+        be left to the clip (:meth:`Base.plateau`).
     """
-    fr = rows & ~shut
+    censored = shut if plateau is None else shut | plateau
+    fr = rows & ~censored
     parts = [(open_rows or SlopeRows.of(Y[fr]), y_unit[fr], H[fr])]
     w, offset, coef = fit_weights_on(parts)
-    over = rows & shut
-    if not over.any():
+    back = rows & censored
+    if not back.any():
         return w, offset, coef
-    over[over] = Y[over] @ w + offset + H[over] @ coef > zero_unit
-    if over.any():
-        parts.append((SlopeRows.of(Y[over]), y_unit[over], H[over]))
+    q = Y[back] @ w + offset + H[back] @ coef
+    back[back] = np.where(shut[back], q > zero_unit, q < (np.inf if reach_unit is None else reach_unit[back]))
+    if back.any():
+        parts.append((SlopeRows.of(Y[back]), y_unit[back], H[back]))
         w, offset, coef = fit_weights_on(parts)
     return w, offset, coef
 
@@ -751,18 +794,18 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
         if d.valve is not None:  # the PI's operators are not clipped at the valve: nor are its columns
             pv = d.valve.X.shape[1]
             H = np.column_stack([d.valve.dynamics(d.valve.X[:, i]) if i < pv else d.X[:, i] for i in joint])
-        fit_ok = d.fit_ok if d.valve is None else _fit_rows(base, sig, chain)
     else:  # the exact laws are in the operators: no column to fit jointly
-        H, fit_ok = np.zeros((len(sig), 0)), _fit_rows(base, sig, chain)
+        H = np.zeros((len(sig), 0))
+    fit_ok = _fit_rows(base, sig, chain)
     # the shut rows of a dead zone say nothing of the PI
     fr = rows & fit_ok & is_open(sig, chain)
     m = base.model
     ys = m.y_scale
     Y = base.regressors_at_sensor(sig, chain)
     y_unit = ys.to_unit(sig.flow_lpm)
-    shut = base.shut(sig)
+    shut, (top, reach) = base.shut(sig), base.plateau(sig, chain, valve=False)
     w, offset, _ = censored_fit(Y, y_unit, H / ys.half_range, fr, shut, float(ys.to_unit(0.0)),
-                                base.slope_rows(sig, chain, fr & ~shut))
+                                base.slope_rows(sig, chain, fr & ~shut & ~top), top, ys.to_unit(reach))
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
     return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root)

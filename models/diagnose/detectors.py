@@ -69,6 +69,11 @@ TIE = 0.005
 TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
 #: Function evaluations of one exact-law refinement (besides those of its Jacobians).
 REFINE_EVALS = 16
+#: Relative step (of the log-scale parameters) of the refinement's finite-difference Jacobian: a
+#: heating's rise and time constant trade off along a narrow curved valley, across which a 1 % step
+#: (a 5 % change of a time constant) differences the valley's walls, not its floor; the refinement
+#: then steps into a wall, shrinks its trust region and stops far from the minimum.
+REFINE_DIFF_STEP = 1e-3
 #: Training rows an exact-law refinement fits on (a regular subsample beyond this).
 REFINE_ROWS = 12000
 #: Training rows the starts of an exact-law refinement are compared on (they only need ranking).
@@ -387,7 +392,7 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
             return train_residual(design(word, base, sig, {**chain, word: {**params, **values(u)}}, folds, rows)[0],
                                   y, rows)
 
-        res = least_squares(resid, u0, bounds=(flo, fhi), diff_step=1e-2, max_nfev=REFINE_EVALS, xtol=1e-3,
+        res = least_squares(resid, u0, bounds=(flo, fhi), diff_step=REFINE_DIFF_STEP, max_nfev=REFINE_EVALS, xtol=1e-3,
                             ftol=1e-6)
         return {**params, **values(res.x)}
     grid = w.grid(sig, base)
