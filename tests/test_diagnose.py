@@ -318,6 +318,18 @@ def test_gross_saturation_with_creep():
     assert 0.05 < named["creep"].params["amplitude"] < 0.2
 
 
+def test_creep_stops_at_a_shut_valve():
+    # breaths resting at 30 %, below the valve's opening: between breaths the plunger creeps on by
+    # 15 % of the last step (some 17 L/min) but a shut valve passes nothing, so the creep shows only
+    # while the valve is open. Held against the model file, creep and the sensor's offset (which is
+    # all the shut valve's rows show) are each sized from their own rows
+    rec = _plant_recording({"creep": 0.15, "sensor_offset": 1.5}, "breaths", 300.0, seed=11)
+    named = {f.effect: f for f in diagnose_response(rec, load_model(S.MODEL_JSON)).findings}
+    assert set(named) == {"creep", "sensor_offset"}
+    assert named["creep"].params["amplitude"] == pytest.approx(0.15, rel=0.25)
+    assert named["sensor_offset"].params["offset_lpm"] == pytest.approx(1.5, abs=0.2)
+
+
 @pytest.mark.slow
 def test_gross_asymmetry_ten_times_the_loop():
     # descending thresholds lifted by 10 x the major loop's half-width at the top of the range

@@ -426,6 +426,11 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
             names.append(w)
     Xv = at_valve(np.column_stack(cols) if cols else np.zeros((n, 0)), sig, chain)
     ref_v = Xv[:, 0] if base.refit else at_valve(ref, sig, chain)
+    # an effect at the valve moves no flow where the reference has the valve shut (the floor's
+    # active set): a creeping plunger or a warm coil does not open a closed valve
+    first = 4 if base.refit else 0
+    if Xv.shape[1] > first:
+        Xv[:, first:] *= (ref_v > 0.0)[:, None]
     F_v = F if base.refit else ref_v
     clip_hi = clip_of(chain)
     shut = base.shut(sig)

@@ -634,8 +634,12 @@ class Creep(Word):
     def grid(self, sig, base):
         return {"tau_s": np.geomspace(0.5, min(400.0, _span(sig) / 4), 9)}
 
-    def sensor_columns(self, ctx, params):
-        return [fx.creep(ctx.at_sensor_lpm, branch(ctx.sig.duty_pct), ctx.sig.rate_hz, params["tau_s"])]
+    def valve_columns(self, ctx, params):
+        # the plunger creeps: a shut valve passes nothing however far it has crept (the floor's
+        # active set zeroes the column there, :func:`design.build`), and the step it creeps after
+        # is one of the flow the valve passed
+        q = np.clip(ctx.flow_lpm, 0.0, None)
+        return [fx.creep(q, branch(ctx.sig.duty_pct), ctx.sig.rate_hz, params["tau_s"])]
 
     def physical(self, params, coef, sig, base):
         return {"tau_s": float(params["tau_s"]), "amplitude": float(coef)}
