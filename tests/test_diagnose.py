@@ -215,6 +215,30 @@ def test_gross_coil_heating_is_modelled_by_its_exact_law():
     assert f.holdout_rmse_after < 0.3 * f.holdout_rmse_before and f.slope > 0.7
 
 
+def test_a_staircase_at_the_valves_memory_epochs_is_not_read_as_heat():
+    # plant_sim's valve holds the highest breath so far in its widest operators: its flow steps at
+    # each new highest breath (by 1.2 L/min, then 0.23, on this seed), which the 50-operator PI gets
+    # wrong by a different amount in each memory epoch, and a coil's thermal state took the
+    # staircase up. With a free offset per epoch the heating explains too little to be named; a true
+    # heating on the same breaths is named at its rise, and a recording whose valve is open at its
+    # first row has no epochs
+    from models.diagnose.design import memory_epochs
+    from models.diagnose.signals import work_signals
+    from models.diagnose.trace import NOT_PHYSICAL
+
+    rec = _plant_recording({}, "breaths", 300.0, seed=2011)
+    E = memory_epochs(work_signals(rec, None))
+    assert E.shape[1] >= 2 and np.all(np.diff(E, axis=0) >= 0)  # steps up, each once
+    d = diagnose_response(rec)
+    assert d.findings == []
+    refused = [t for t in d.trace if t.word == "coil_heating" and t.outcome == NOT_PHYSICAL]
+    assert refused and "memory epoch" in refused[-1].why
+    warm = diagnose_response(_plant_recording({"coil_heating": 20.0}, "breaths", 300.0, seed=2011))
+    assert [f.effect for f in warm.findings] == ["coil_heating"]
+    assert warm.findings[0].params["rise55_k"] == pytest.approx(20.0, rel=0.25)
+    assert memory_epochs(work_signals(_plant_recording({}, "paper_identification", 60.0), None)).shape[1] == 0
+
+
 @pytest.mark.slow  # ~13 s: make test keeps the suite under 5 minutes
 def test_gross_dead_zone_is_named_at_its_cracking_duty():
     d = diagnose_response(_plant_recording({"dead_zone": 45.0}, "paper_identification", 300.0))

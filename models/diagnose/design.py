@@ -60,6 +60,9 @@ SHUT_NOISE = 3.0
 #: A flow within this many times the sensor noise of the full-open flow, or above it, is at the
 #: plateau: the flow the valve would pass there is only known to be at least the full-open flow.
 PLATEAU_NOISE = 3.0
+#: Growths of the duty's running range closer than this (s) to the last one share one memory epoch
+#: (a breath's 0.2 s rise grows it over many samples).
+EPOCH_S = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -309,6 +312,32 @@ def memory_start_s(sig: Signals, n: int = BASELINE_N) -> float:
     return float(sig.t_s[np.argmax(turned)]) if turned.any() else float(sig.t_s[0])
 
 
+def memory_epochs(sig: Signals) -> np.ndarray:
+    """Step columns, shape (N, e): one from each growth of the duty's running range after the initial
+    loading curve of a recording whose valve is shut at its first row (:func:`memory_start_s`), at
+    most one every :data:`EPOCH_S`; none otherwise.
+
+    An operator the running range has not yet wiped out (twice its threshold wider than the range)
+    holds the highest (or lowest) duty so far, and only a growth of the range moves it: between two
+    growths those operators add a constant, which a fitted PI, its thresholds elsewhere than the
+    valve's, gets wrong by a different amount in each epoch. plant_sim's valve (weights of +-0.8 side
+    by side among its widest operators) steps its flow at every later breath by 1.2 L/min while its
+    highest breath is 70.65 % and by 0.23 L/min while it is 71.4 % (effect-free breaths resting at
+    30 %, seed 2011): a staircase in time that a slow drift's law takes up.
+    """
+    x = sig.duty_pct
+    start = memory_start_s(sig)
+    if start <= sig.t_s[0]:
+        return np.zeros((len(x), 0))
+    span = np.maximum.accumulate(x) - np.minimum.accumulate(x)
+    cols, last = [], -np.inf
+    for k in np.flatnonzero(np.diff(span) > 0) + 1:
+        if sig.t_s[k] > start and sig.t_s[k] - last >= EPOCH_S:
+            cols.append(np.arange(len(x)) >= k)
+            last = sig.t_s[k]
+    return np.column_stack(cols).astype(float) if cols else np.zeros((len(x), 0))
+
+
 def pi_columns(r: np.ndarray, x_unit: np.ndarray, y0=np.nan) -> np.ndarray:
     """Play operator outputs, Eq. (1), started by Eq. (3) at the first input (``y0`` NaN: at rest there)."""
     Y, _ = play.play_response(r, x_unit, play.init(r, x_unit[0], y0))
@@ -326,8 +355,9 @@ class Design:
     X : ndarray, shape (N, p)
         Free columns; ``theta`` in L/min per column unit.
     names : tuple of str
-        Column names: ``gain``, ``offset``, ``loop_width`` and ``duty_scale`` (refitted baseline),
-        then effect words.
+        Column names: ``gain``, ``offset``, ``loop_width``, ``duty_scale`` and, when asked for, a
+        ``memory`` offset per memory epoch (:func:`memory_epochs`) (refitted baseline), then effect
+        words.
     fit_ok : ndarray of bool
         Rows the fit may use (rows at the plateau the prediction reaches are left to the clip
         (:meth:`Base.plateau`), shut rows to the floor; all, with :attr:`valve`, whose linearized
@@ -396,7 +426,7 @@ def clip(q: np.ndarray, clip_hi: float | None, floor: bool) -> np.ndarray:
     return np.maximum(q, 0.0) if floor else q
 
 
-def build(base: Base, sig: Signals, chain: dict) -> Design:
+def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design:
     """Columns of baseline + the effects in ``chain`` on the grid of ``sig``.
 
     Parameters
@@ -408,6 +438,9 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     chain : dict
         ``{effect word: {parameter: value}}`` with the nonlinear parameters of each word
         (:data:`models.diagnose.words.VOCABULARY`); linear effects have ``{}``.
+    memory : bool
+        A refitted baseline also has a free offset per memory epoch (:func:`memory_epochs`), named
+        ``memory``: what a slow drift must explain beyond (:meth:`Word.beside_memory`).
     """
     n = len(sig.t_s)
     F = base.predict(sig, chain)
@@ -416,8 +449,9 @@ def build(base: Base, sig: Signals, chain: dict) -> Design:
     names: list[str] = []
     cols = []
     if base.refit:
-        cols += [F, np.ones(n), loop, slope]
-        names += ["gain", "offset", "loop_width", "duty_scale"]
+        epochs = memory_epochs(sig) if memory else np.zeros((n, 0))
+        cols += [F, np.ones(n), loop, slope, *epochs.T]
+        names += ["gain", "offset", "loop_width", "duty_scale"] + ["memory"] * epochs.shape[1]
         F = np.zeros(n)
     valve_ctx = Columns(sig, ref, lift, slope)
     for w, p in chain.items():

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from .calibrate import Margins
-from .design import Base, CVResult, Design, build, cross_validate, fit_final, solve, unbend
+from .design import Base, CVResult, Design, build, cross_validate, fit_final, memory_epochs, solve, unbend
 from .folds import Folds
 from .signals import Signals, noise_lpm
 from .trace import ALTERNATIVE, BELOW_MARGIN, DROPPED, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
@@ -532,7 +532,7 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
             cands[w] = test_effect(w, sel.chain, before, cur, sig, folds, margins.gain[w])
         _gross_exact(cands, words, sel, before, cur, sig, folds, margins, noise)
         passing = _passing(cands, sel, margins, rnd)
-        accepted, refused = _first_acceptable(passing, sel.chain, cur, sig, folds, noise)
+        accepted, refused = _first_acceptable(passing, sel.chain, cur, sig, folds, noise, margins)
         for c, outcome, why in refused:
             sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, outcome, why))
         masking = _masking(refused, accepted)
@@ -732,13 +732,14 @@ def _passing(cands: dict, sel: Selection, margins: Margins, rnd: int) -> list:
     return sorted(passing, key=lambda c: -c.gain)
 
 
-def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float):
+def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float,
+                      margins: Margins):
     """The strongest passing candidate whose refined law is physical, resolved and supported:
     ``((candidate, chain, physical params), refused)`` with ``refused`` the ``(candidate, outcome,
     why)`` of the stronger ones that were not."""
     refused = []
     for c in passing:
-        found = _accept(c, chain, cur, sig, folds, noise)
+        found = _accept(c, chain, cur, sig, folds, noise, margins)
         if isinstance(found, tuple) and isinstance(found[0], str):
             refused.append((c, *found))
             continue
@@ -768,12 +769,35 @@ def _alternative(c: Candidate, phys: dict, cands: dict, passing: list, sel: Sele
     sub_sample = phys[TIME_PARAM[c.word]] * sig.rate_hz < 1.0
     if other is None or not any(o is other for o in passing) or not (c.gain - other.gain < AMBIGUOUS or sub_sample):
         return set()
-    alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds, noise)
+    alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds, noise, margins)
     if isinstance(alt[0], str):
         return set()
     sel.alternatives[c.word] = alt
     sel.trace.append(_decision(other, rnd, _need(other, sel, margins), margins, ALTERNATIVE))
     return {other.word}
+
+
+def _memory_steps(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
+                  margins: Margins) -> str | None:
+    """Why a slow drift's law (:meth:`Word.beside_memory`) explains no more than a staircase at the
+    valve's memory epochs (:func:`models.diagnose.design.memory_epochs`), or ``None``: with a free
+    offset per epoch in the model with and without it (``chain``, on ``cur``; ``full``, on ``b``),
+    it must still lower the held-out error by its margin in a fold majority."""
+    w = VOCABULARY[word]
+    epochs = memory_epochs(sig).shape[1] if w.beside_memory(sig) and cur.refit else 0
+    if not epochs:
+        return None
+    y = sig.flow_lpm
+    c = _candidate(word, full[word], cross_validate(build(b, sig, full, memory=True), y, folds),
+                   cross_validate(build(cur, sig, chain, memory=True), y, folds), b,
+                   "exact" if w.is_exact(full[word]) else "linearized")
+    need = margins.gain[word]
+    if c.gain > need and c.majority(margins.min_wins):
+        return None
+    return (f"with a free offset per memory epoch of the valve (each growth of the duty's range, "
+            f"{epochs} here) its held-out error changes by {-100 * c.gain:+.2f} % (needs "
+            f"below -{100 * need:.2f} %), lower in {c.wins}/{len(c.test_after)} folds: a drift in steps at the "
+            f"growths of the duty's range, the valve's hysteresis memory, not a thermal one")
 
 
 def _within_phase(word: str, params: dict, chain: dict, sig: Signals) -> str | None:
@@ -788,9 +812,11 @@ def _within_phase(word: str, params: dict, chain: dict, sig: Signals) -> str | N
     return None
 
 
-def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float) -> tuple:
+def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float,
+            margins: Margins) -> tuple:
     """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or
-    ``(outcome, why)`` when they are not physical, not resolved, or the recording does not show the law."""
+    ``(outcome, why)`` when they are not physical, not resolved, the recording does not show the law,
+    or a slow drift's law explains no more than the valve's memory steps (:func:`_memory_steps`)."""
     w = VOCABULARY[c.word]
     b = cur if w.joint_with_pi else c.base or cur
     params = w.settle(sig, c.params if c.refined else refine(c.word, chain, c.params, b, sig, folds), chain)
@@ -813,6 +839,9 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         why = w.support(sig, params, without, noise, chain, extrapolated=True) and why
     if why:
         return UNSUPPORTED, why
+    why = _memory_steps(c.word, chain, full, cur, b, sig, folds, margins)
+    if why:
+        return NOT_PHYSICAL, why
     c.params = params
     if w.joint_with_pi:
         c.base = b

@@ -174,6 +174,13 @@ class Word:
         past them."""
         return None
 
+    def beside_memory(self, sig: Signals) -> bool:
+        """Whether the word's law is a slow drift along the recording that must explain it beyond a
+        free offset per memory epoch (:func:`models.diagnose.design.memory_epochs`): the steps a
+        valve's hysteresis memory takes at each growth of the duty's range, which a fitted PI gets
+        wrong by a different amount in each epoch, are a staircase in time, not the word's physics."""
+        return False
+
     def absorbed(self, sig: Signals, chain: dict) -> str | None:
         """Why the word, not named, cannot be told apart from a baseline fitted on the recording
         although the recording shows its law's signature (asked only when ``chain``, the named
@@ -351,6 +358,11 @@ class CoilHeating(Word):
 
     def within_physics(self, params):
         return params.get("rise55_k", 0.0) <= MAX_RISE55_K
+
+    def beside_memory(self, sig):
+        # a coil's temperature follows the power it dissipates through its thermal time constant, at
+        # every row; a measured coil temperature drives the law directly
+        return sig.coil_temp_c is None
 
     def caveat(self, phys):
         rise = phys.get("rise55_k")
