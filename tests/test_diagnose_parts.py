@@ -344,3 +344,26 @@ def test_the_clip_acts_at_the_valve_before_the_lag():
     d = build(fixed_base(model, sig), sig, chain)
     np.testing.assert_allclose(d.predict(np.zeros(0)), lagged, atol=1e-9)
     assert np.all(cross_validate(d, lagged, make_folds(t)).test < 1e-12)
+
+
+@given(crack=st.floats(40.0, 50.0), tau=st.floats(0.01, 0.06), seed=st.integers(0, 1000))
+@settings(max_examples=10, deadline=None)
+def test_the_recording_places_a_cracking_duty_behind_a_lag(crack, tau, seed):
+    # breaths rising from 30 % within a fifth of a second: the flow reaches the sensor through a lag
+    # long after the duty has crossed the cracking duty, but the flow at the valve leaves zero there
+    from models.diagnose.signals import Signals
+    from models.diagnose.words import CRACKING_STEP_PCT, VOCABULARY
+
+    rate = 100.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    phase = (t % 3.0) / 3.0
+    duty = 30.0 + 35.0 * np.clip(np.minimum(phase / 0.07, (0.5 - phase) / 0.1), 0.0, 1.0)
+    valve = np.where(duty > crack, 20.0 + 3.0 * (duty - crack), 0.0)
+    lag = {"tau_s": tau, "phase": 1.0}
+    flow = fx.first_order_lag(valve, rate, tau, phase=1.0) + np.random.default_rng(seed).normal(0.0, 0.3, t.size)
+    sig = Signals(t, duty, flow, None, None, rate)
+    dz = VOCABULARY["dead_zone"]
+    (placed,) = dz.placed(sig, {"valve_dynamics": lag})
+    shut, opened = duty[duty <= crack], duty[duty > crack]
+    # between the highest shut and the lowest open duty, to the refinement's step
+    assert shut.max() - CRACKING_STEP_PCT <= placed["cracking_pct"] <= opened.min() + CRACKING_STEP_PCT

@@ -179,7 +179,7 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
     (the linearized columns then say nothing of a large effect: a coil 90 K warm shifts the
     effective duty by a third, far past a first-order column)."""
     w = VOCABULARY[word]
-    points = grid_points(w, sig, base)
+    points = grid_points(w, sig, base) + w.placed(sig, chain)
     results = [cross_validate(design(word, base, sig, {**chain, word: p}, folds)[0], sig.flow_lpm, folds)
                for p in points]
     train = np.array([r.train for r in results])          # (G, K)
@@ -195,11 +195,19 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
     new_base = design(word, base, sig, {**chain, word: best}, folds)[1] if w.joint_with_pi and base.refit else None
     if w.static and base.refit:
         # a static law at a range end bends a PI fitted through it: refitted without the rows it explains
-        ch = {**chain, word: best}
-        refit = unbend(base, sig, ch, folds.train)
-        cv_r = cross_validate(build(refit, sig, ch), sig.flow_lpm, folds)
+        refit = unbend(base, sig, {**chain, word: best}, folds.train)
+        if w.resolution:
+            # and placed to the word's resolution between its grid neighbours on the PI so refitted: a
+            # cracking duty between two grid points shuts the rows of neither, and a breath's rise
+            # crosses the gap within a sample or two
+            fine = refine(word, chain, best, refit, sig, folds)
+            if fine != best:
+                refit = unbend(base, sig, {**chain, word: fine}, folds.train)
+        else:
+            fine = best
+        cv_r = cross_validate(build(refit, sig, {**chain, word: fine}), sig.flow_lpm, folds)
         if cv_r.test.sum() < cv.test.sum():
-            cv, new_base = cv_r, refit
+            cv, new_base, best = cv_r, refit, fine
     cand = _candidate(word, best, cv, before, new_base, "exact" if w.is_exact(best) else "linearized")
     if cand.train_gain > margin or gross:
         exact = _exact(w, chain, cand, before, base, sig, folds)
@@ -238,13 +246,14 @@ def _unbent_best(word: str, points: list, bent_sse: np.ndarray, chain: dict, bas
     order = np.argsort(bent_sse)[:STATIC_LEADS]
     near = sorted({int(j) for i in order for j in (i - 1, i, i + 1) if 0 <= j < len(points)})
     rows = _subsample(folds.train, START_ROWS)
-    y = sig.flow_lpm
+    return min(near, key=lambda i: unbent_sse(word, chain, points[i], base, sig, rows))
 
-    def sse(i):
-        ch = {**chain, word: points[i]}
-        return train_sse(build(unbend(base, sig, ch, rows), sig, ch), y, rows)
 
-    return min(near, key=sse)
+def unbent_sse(word: str, chain: dict, params: dict, base: Base, sig: Signals, rows: np.ndarray) -> float:
+    """Training error on ``rows`` of ``chain`` with the static ``word`` at ``params``, the PI refitted
+    on ``rows`` without the rows the law explains (:func:`models.diagnose.design.unbend`)."""
+    ch = {**chain, word: params}
+    return train_sse(build(unbend(base, sig, ch, rows), sig, ch), sig.flow_lpm, rows)
 
 
 def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base, sig: Signals,
@@ -396,12 +405,15 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
                             ftol=1e-6)
         return {**params, **values(res.x)}
     grid = w.grid(sig, base)
+    fine_rows = _subsample(rows)
     for key, values in grid.items():
         values = np.asarray(values, dtype=float)
         if len(values) < 3 or key not in params:
             continue
-        # between the grid neighbours, in log scale for a positive parameter (a time constant)
-        log = bool(np.all(values > 0))
+        # between the grid neighbours, to the word's resolution of it, else in log scale for a
+        # positive parameter (a time constant)
+        step = w.resolution.get(key)
+        log = step is None and bool(np.all(values > 0))
         to, back = (np.log, np.exp) if log else (float, float)
         i = int(np.argmin(np.abs(values - params[key])))
         first, last = 0, len(values) - 1
@@ -414,10 +426,14 @@ def refine(word: str, chain: dict, params: dict, base: Base, sig: Signals, folds
 
         def cost(u):
             p = {**params, key: float(back(u))}
+            if w.static and base.refit:
+                # the PI refitted without the rows each setting explains (with the PI held, a cracking
+                # duty is drawn to where the PI fitted at the start closes by itself)
+                return unbent_sse(word, chain, p, base, sig, fine_rows)
             return train_sse(design(word, base, sig, {**chain, word: p}, folds)[0], y, rows)
 
         res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                              options={"xatol": 0.02 if log else 0.02 * (hi - lo), "maxiter": 12})
+                              options={"xatol": 0.02 if log else step or 0.02 * (hi - lo), "maxiter": 12})
         if res.fun < cost(to(params[key])):
             params[key] = float(back(res.x))
     return params
@@ -715,7 +731,10 @@ def misfit(cv: CVResult) -> float:
 def _need(c: Candidate, sel: Selection, margins: Margins) -> float:
     need = margins.gain[c.word]
     first = next((s for s in sel.steps if s is not c), None)
-    if first is not None:  # the law of a named effect leaves part of it for other detectors to take up
+    # the law of a named effect leaves part of it for other detectors to take up; a static law at a
+    # range end is asserted only where the recording shows it (rows where the flow really stops or
+    # flattens, :meth:`Word.support`), which that misfit does not
+    if first is not None and not VOCABULARY[c.word].static:
         need = max(need, SECONDARY * first.gain)
     return need
 

@@ -85,6 +85,10 @@ class Word:
     input_side : str or None
         What the exact law changes at the hysteresis core's input: ``"duty"`` (the effective
         duty, :meth:`effective_duty`) or ``"thresholds"`` (:meth:`threshold_widening`).
+    resolution : dict
+        Screened parameter -> the step (in its unit) to which the refinement places it between its
+        grid neighbours, on a linear scale (else 2 % of a positive parameter, on a log scale: a
+        time constant).
     """
 
     word: str
@@ -98,11 +102,17 @@ class Word:
     probe: dict = field(default_factory=dict)
     input_side: str | None = None
     ratio_of: dict = field(default_factory=dict)
+    resolution: dict = field(default_factory=dict)
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
         """``{parameter: values}`` of the nonlinear parameters screened (empty: linear only)."""
         return {}
+
+    def placed(self, sig: Signals, chain: dict) -> list:
+        """Settings of the nonlinear parameters the recording itself places (``chain``: the named
+        words it joins), screened with the grid; empty by default."""
+        return []
 
     def applicable(self, sig: Signals, base) -> str | None:
         """``None``, or why the word cannot be tested on this recording with this baseline."""
@@ -233,6 +243,11 @@ LAW_RISE55_K = 250.0
 MIN_END_ROWS = 3
 #: Duty band (%) above a cracking duty where the flow must have jumped.
 JUMP_BAND_PCT = 2.0
+#: Step (% duty) to which a cracking duty is refined: a breath's rise crosses a per cent of duty in a
+#: few samples, and a cracking duty placed a fifth of a per cent low leaves those rows open at the
+#: valve in the model where the valve passes nothing (2 % of the duty, a time constant's step, is a
+#: whole per cent at 45 %).
+CRACKING_STEP_PCT = 0.05
 
 
 def _span(sig: Signals) -> float:
@@ -476,6 +491,24 @@ class DeadZone(Word):
     def applicable(self, sig, base):
         return None if len(self.grid(sig, base)["cracking_pct"]) else "the duty never goes low enough"
 
+    def placed(self, sig, chain):
+        # the duty where the flow at the valve leaves zero: the threshold that best splits the rows
+        # into shut below it and open above it (over the plausible range). A grid a few tenths of a
+        # per cent apart misses a cracking duty's narrow minimum, and a breath's rise crosses the gap
+        # within a sample or two
+        q = self._at_valve(sig, chain)
+        lo_hi = self.plausible["cracking_pct"]
+        x = sig.duty_pct
+        rows = x <= lo_hi[1]
+        order = np.argsort(x[rows], kind="stable")
+        xs = x[rows][order]
+        opened = (q[rows] > self._zero_lpm(sig, q))[order]
+        # misplaced rows with the threshold after row i: open rows at or below it, shut rows above it
+        wrong = np.cumsum(opened) + (np.sum(~opened) - np.cumsum(~opened))
+        i = int(np.argmin(wrong))
+        c = float(xs[i]) + 1e-6
+        return [{"cracking_pct": c}] if lo_hi[0] <= c < lo_hi[1] and i + 1 < len(xs) else []
+
     def flow_gain(self, sig, params):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
 
@@ -707,7 +740,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         {"delay_s": "s"}, {"delay_s": (0.0, 1.0)}, unresolved=("delay_s", "high"), probe={"delay_s": 0.01}),
     DeadZone(
         "dead_zone", "no flow while the duty is below the cracking duty",
-        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 65.0)}, static=True),
+        {"cracking_pct": "%"}, {"cracking_pct": (0.5, 65.0)}, static=True,
+        resolution={"cracking_pct": CRACKING_STEP_PCT}),
     Saturation(
         "saturation", "flow clipped at the full-open flow",
         {"full_open_lpm": "L/min"}, {"full_open_lpm": (10.0, 400.0)}, static=True),
