@@ -367,3 +367,28 @@ def test_the_recording_places_a_cracking_duty_behind_a_lag(crack, tau, seed):
     shut, opened = duty[duty <= crack], duty[duty > crack]
     # between the highest shut and the lowest open duty, to the refinement's step
     assert shut.max() - CRACKING_STEP_PCT <= placed["cracking_pct"] <= opened.min() + CRACKING_STEP_PCT
+
+
+def test_a_model_files_exact_asymmetry_is_the_simulated_valves_beyond_its_identified_range():
+    # the simulated valve holds the model's input to its identified range (seated below it, fully
+    # open above it) and lifts every descending threshold there: the exact law held against a model
+    # file is that valve on a duty that leaves the range at both ends, not its PI run on past them
+    from plant_sim.plant import BatchPlant, PlantParams, _major_loop_half_width
+    from models.diagnose.design import fixed_base
+    from models.diagnose.signals import Signals
+    from models.model import load_model
+
+    model = load_model("config/valve_model.json")
+    rate_hz, extra = 100.0, 6.0
+    t = np.arange(8000) / rate_hz
+    duty = 55.0 + 27.0 * np.sin(2 * np.pi * t / 9.0) * np.sin(2 * np.pi * t / 61.0)
+    lo, hi = model.x_scale.center - model.x_scale.half_range, model.x_scale.center + model.x_scale.half_range
+    assert duty.min() < lo - 5.0 and duty.max() > hi + 5.0
+    params = PlantParams(model, noise_lpm=0.0, scale_factor=0.0, range_lpm=(-1e9, 1e9), asymmetric_hysteresis=extra)
+    valve = BatchPlant(params, rate_hz)
+    flow = valve.run(valve.init(duty[0]), duty[None, :])[1]["true_flow_lpm"][0]
+    sig = Signals(t, duty, flow, None, None, rate_hz)
+    base = fixed_base(model, sig)
+    law = {"asymmetric_hysteresis": {"widen": 0.0, "lift": extra * _major_loop_half_width(model.core)}}
+    assert np.abs(base.predict(sig, {}) - flow).max() > 10.0  # the asymmetry is gross
+    np.testing.assert_allclose(base.predict(sig, law), flow, atol=1e-6)

@@ -231,3 +231,34 @@ def test_decision_trace_is_data_the_report_words():
     d = Decision("creep", 0, 0.01, 0.03, 2, 3, 6, 4, "linearized", BELOW_MARGIN)
     assert d.to_dict()["outcome"] == BELOW_MARGIN
     assert "-1.00 %" in explain(d) and "needs below -3.00 %" in explain(d)
+
+
+
+def test_asymmetry_must_explain_the_residual_where_its_widening_is_largest():
+    # loops of varying amplitude; the correction of a descending branch widened with the input level
+    # (the PI refitted with and without it). A residual that is that correction is supported, beside a
+    # slow drift of another law too; a residual the correction follows everywhere but where it is
+    # largest (another law's, which a held-out gain alone takes for the widening) is refused
+    asym = VOCABULARY["asymmetric_hysteresis"]
+    t = np.arange(30000) / 100.0
+    x = (0.4 + 0.6 * np.abs(np.sin(2 * np.pi * t / 97.0))) * (2.0 * np.abs((t / 7.0) % 2.0 - 1.0) - 1.0)
+    duty = 55.0 + 15.0 * x
+    r = np.linspace(0.0, 0.6, 12)
+    sym, gen = fx.generalized_play(r, x, 0.0, 0.0), fx.generalized_play(r, x, 0.0, 0.3)
+    y = 100.0 + 80.0 * gen @ np.exp(-r / 0.2) / np.exp(-r / 0.2).sum()
+
+    def pi(ops):
+        A = np.column_stack([ops, np.ones(len(t))])
+        return A @ np.linalg.lstsq(A, y, rcond=None)[0]
+
+    before, after = pi(sym), pi(gen)
+    delta = after - before
+    largest = np.abs(delta) >= np.quantile(np.abs(delta), 0.9)
+    noise = np.random.default_rng(3).normal(0.0, 0.5, len(t))
+    drift = 2.0 * (before - 100.0) / 80.0 * (1.0 - np.exp(-t / 120.0))
+    params = {"widen": 1e-3, "lift": 0.3}
+    for resid in (delta, delta + drift):
+        assert asym.support(_sig(duty, before + resid + noise), params, before, 0.5, after_lpm=after) is None
+    elsewhere = np.where(largest, 0.0, delta)
+    why = asym.support(_sig(duty, before + elsewhere + noise), params, before, 0.5, after_lpm=after)
+    assert "where its correction is largest" in why

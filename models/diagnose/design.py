@@ -123,11 +123,25 @@ class Base:
         """Prediction (L/min) on ``sig`` under the input-side laws of ``chain`` (effective duty,
         lifted descending thresholds), cached."""
         x, a, key = inputs(sig, chain)
-        if self.refit or (any(a) and isinstance(self.model.core, PIModel)):
-            w, c = (self.shape.w, self.shape.offset) if self.refit else (self.model.core.w, self.model.core.offset)
-            return self._cached(("q", id(sig), key),
-                                lambda: self.model.y_scale.from_unit(self.regressors(sig, chain) @ w + c))
+        if self.refit:
+            return self._cached(("q", id(sig), key), lambda: self.model.y_scale.from_unit(
+                self.regressors(sig, chain) @ self.shape.w + self.shape.offset))
+        if any(a) and isinstance(self.model.core, PIModel):
+            # the model file run as the simulated valve runs it (its input held to the identified
+            # range, closing below it, no reverse flow), plus what the lifted descending thresholds
+            # change in its own operators on that held input: a PI's output is linear in them
+            duty_only = {w: p for w, p in chain.items() if VOCABULARY[w].input_side == "duty"}
+            return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz, sig.rest_pct)
+                                + self.y_half * ((self.regressors(sig, chain) - self.regressors(sig, duty_only))
+                                                 @ self.model.core.w))
         return self._cached(("q", id(sig), key), lambda: simulated(self.model, x, sig.rate_hz, sig.rest_pct))
+
+    def unit_input(self, duty_pct: np.ndarray) -> np.ndarray:
+        """A duty (%) as the hysteresis core's normalized input: a model file's valve holds it to the
+        identified range [-1, 1] (seated below it, fully open above it, as the simulated valve runs
+        it); a PI fitted on the recording spans the recording's own range."""
+        u = self.shape_scale.to_unit(duty_pct)
+        return u if self.refit else np.clip(u, -1.0, 1.0)
 
     def shut(self, sig: Signals) -> np.ndarray:
         """Rows where a PI fitted on the recording is left to the valve's no-reverse-flow floor: the
@@ -173,7 +187,7 @@ class Base:
 
         def make():
             x = sig.duty_pct
-            x_unit = self.shape_scale.to_unit(x)
+            x_unit = self.unit_input(x)
             ops = self.regressors(sig, {})
             loop = fx.loop_offset(ops, x_unit, self.shape.w) * self.y_half
             lift = fx.descending_lift(ops, x_unit, self.shape.r) @ self.lift_w * self.y_half
@@ -193,7 +207,7 @@ class Base:
         x, a, key = inputs(sig, chain)
 
         def make():
-            x_unit = self.shape_scale.to_unit(x)
+            x_unit = self.unit_input(x)
             y0 = self.shape.y0
             if sig.rest_pct is not None:  # at rest at the duty before the first row, within the input range
                 y0 = np.full_like(self.shape.r, np.clip(self.shape_scale.to_unit(sig.rest_pct), -1.0, 1.0))

@@ -657,7 +657,8 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
 
     A word named first is refined before the others are known, and its parameters absorb part
     of them (a coil heating found before an asymmetry takes up some of the loop's widening; a
-    creep named before the heating is sized takes up part of the drift): one round of refinement
+    creep named before the heating is sized takes up part of the drift; against a model file, an
+    asymmetry's lift named before a sensor offset takes up part of the offset): one round of refinement
     with the whole chain puts each back on its own physics. Exact laws are refined by least
     squares, time constants and other screened parameters between their grid neighbours; a
     static law at a range end is left where the rows that show it placed it. A refined law is
@@ -674,7 +675,7 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
     for step in sel.steps:
         w = VOCABULARY[step.word]
         params = sel.chain[step.word]
-        if w.static or not params or not sel.reference.refit:
+        if w.static or not params:
             continue
         others = {k: p for k, p in sel.chain.items() if k != step.word}
         rows = _subsample(folds.train)
@@ -767,11 +768,14 @@ def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds
 
 
 def _masking(refused: list, accepted) -> tuple | None:
-    """``(candidate, why)`` of the strongest refused-as-unsupported candidate that gains more than
-    the ``accepted`` one, or None."""
+    """``(candidate, why)`` of the strongest range-end law refused as unsupported (the recording lacks
+    the rows that would show it) that gains more than the ``accepted`` one, or None. A law refused
+    because the residual where it is largest is not its own (an asymmetry's) masks nothing: the
+    residual is another law's, which the accepted one may be."""
     if accepted is None:
         return None
-    over = [(c, why) for c, outcome, why in refused if outcome == UNSUPPORTED and c.gain > accepted[0].gain]
+    over = [(c, why) for c, outcome, why in refused
+            if outcome == UNSUPPORTED and VOCABULARY[c.word].static and c.gain > accepted[0].gain]
     return max(over, key=lambda cw: cw[0].gain) if over else None
 
 
@@ -849,7 +853,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         return NOT_PHYSICAL, why
     d0 = build(cur, sig, chain)
     before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
-    why = w.support(sig, params, before, noise, chain)
+    why = w.support(sig, params, before, noise, chain, after_lpm=d.predict(theta))
     if why and w.static and cur.refit:
         # a PI fitted through a dead zone's shut rows bends to reach zero there and predicts no flow
         # either: what its law's own model (the PI fitted on the rows the law leaves open, its

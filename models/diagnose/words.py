@@ -177,11 +177,13 @@ class Word:
         return {k: float(v) for k, v in params.items()}
 
     def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float,
-                chain: dict | None = None, extrapolated: bool = False) -> str | None:
-        """``None``, or why the recording lacks the rows that would show this law (range-end laws);
+                chain: dict | None = None, extrapolated: bool = False,
+                after_lpm: np.ndarray | None = None) -> str | None:
+        """``None``, or why the recording does not show this law where it should (the rows a
+        range-end law needs; where a law's correction is largest);
         ``chain``: the named words it joins (their time response delays where the law shows);
         ``extrapolated``: ``before_lpm`` is a model fitted without the rows the law explains, run on
-        past them."""
+        past them; ``after_lpm``: the model with the law (its correction is ``after - before``)."""
         return None
 
     def beside_memory(self, sig: Signals) -> bool:
@@ -239,6 +241,10 @@ MAX_RISE55_K = 60.0
 #: a resistance change of the coil (every law beyond halves the flow), and a rise refined onto this bound
 #: has not found the law's minimum (:func:`models.diagnose.detectors._exact`).
 LAW_RISE55_K = 250.0
+#: Share of the rows, those the law's correction moves most, where an asymmetry must be seen ...
+LARGEST_SHARE = 0.1
+#: ... explaining at least this share of the residual's mean square beyond the noise there.
+MIN_EXPLAINED_SHARE = 0.6
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
 #: Duty band (%) above a cracking duty where the flow must have jumped.
@@ -274,8 +280,6 @@ class AsymmetricHysteresis(Word):
     def exact_starts(self, params, coef, sig, base):
         from .design import major_loop_half_width
 
-        if not base.refit:
-            return []
         # each operator widened in proportion to its threshold, or all lifted by one amount (the
         # zero-threshold operator too): the exact law has both, started on a coarse grid
         h = major_loop_half_width(base.shape.r, base.lift_w)
@@ -293,6 +297,26 @@ class AsymmetricHysteresis(Word):
 
     def valve_columns(self, ctx, params):
         return [] if self.is_exact(params) else [ctx.lift_lpm]
+
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+        if after_lpm is None:
+            return None
+        # the law widens the descending branch most at high flow: on the rows where its correction is
+        # largest, the residual before it must be mostly the correction, beyond the noise. A residual
+        # of another word (a coil's heating under-sized beside a supply and a creep) correlates with
+        # the widening over a sweep's loops, and gains held out, but is not the widening where the
+        # widening is largest
+        delta = after_lpm - before_lpm
+        top = np.abs(delta) >= np.quantile(np.abs(delta), 1.0 - LARGEST_SHARE)
+        resid = (sig.flow_lpm - before_lpm)[top]
+        excess = float(np.mean(resid ** 2)) - noise_lpm ** 2
+        left = float(np.mean((resid - delta[top]) ** 2)) - noise_lpm ** 2
+        share = 1.0 - left / excess if excess > 0 else 0.0
+        if share < MIN_EXPLAINED_SHARE:
+            return (f"where its correction is largest (the {100 * LARGEST_SHARE:.0f} % of rows it moves most) it "
+                    f"explains {100 * share:.0f} % of the residual beyond the noise (needs "
+                    f"{100 * MIN_EXPLAINED_SHARE:.0f} %): the residual there is another law's")
+        return None
 
     def physical(self, params, coef, sig, base):
         from .design import major_loop_half_width
@@ -388,7 +412,7 @@ class CoilHeating(Word):
                 f"drifts along the duty's thermal history by more than its coil resistance explains (a warmer "
                 f"ambient, a magnet or spring that weakens with heat)")
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
         if sig.coil_temp_c is None:
             return None
         r = params.get("copper_law_ratio", 1.0)
@@ -512,7 +536,7 @@ class DeadZone(Word):
     def flow_gain(self, sig, params):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
         below = int(np.sum(sig.duty_pct <= params["cracking_pct"]))
         if below < MIN_END_ROWS:
             return f"only {below} rows below the cracking duty"
@@ -658,7 +682,7 @@ class Saturation(Word):
     def clip_lpm(self, params):
         return params["full_open_lpm"]
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
         top = before_lpm > params["full_open_lpm"]
         if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
