@@ -361,6 +361,17 @@ def test_gross_asymmetry_ten_times_the_loop():
     assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(10.0, rel=0.3)
 
 
+def test_asymmetry_on_breaths_resting_below_the_opening_is_not_identifiable():
+    # breaths step down from their plateau to 30 %, below the valve's opening, within one sample: the
+    # descending branch is never sampled open, so no size of asymmetry changes the flow. Said so,
+    # rather than named absent; a sweep's descents show it
+    d = diagnose_response(_plant_recording({"asymmetric_hysteresis": 8.0}, "breaths", 120.0, seed=4))
+    assert d.findings == []
+    assert "descending threshold" in d.model["not_identifiable"]["asymmetric_hysteresis"]
+    d = diagnose_response(_plant_recording({}, "paper_identification", 120.0, seed=4))
+    assert "asymmetric_hysteresis" not in d.model["not_identifiable"]
+
+
 def test_backward_check_drops_a_word_a_later_one_explains():
     # a 40 ms lag on steps. Say a 20 ms delay was named first (it took up part of the lag) and the lag
     # after it: with the lag in place the delay no longer earns its margin, so the backward check on

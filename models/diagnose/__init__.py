@@ -326,8 +326,10 @@ def _findings(sel: Selection, words: list, fits: "_ChainFits", raw: Signals, hol
 
 
 def _invisible(sel: Selection, named: set, base, sig: Signals, folds: Folds) -> dict:
-    """The time-response words not named whose plausible size this excitation shows by less than
-    :data:`VISIBLE` of the noise: not identifiable on it, rather than absent."""
+    """The words not named with a probe size (:attr:`Word.probe`: the time response, the asymmetry)
+    that this excitation shows by less than :data:`VISIBLE` of the noise: not identifiable on it,
+    rather than absent (breaths stepping down to a rest below the valve's opening never sample the
+    descending branch an asymmetry widens)."""
     out = {}
     noise = noise_lpm(sig.flow_lpm)
     cur = sel.steps[-1].base if sel.steps and sel.steps[-1].base is not None else sel.reference

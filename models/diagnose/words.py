@@ -739,7 +739,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         {"extra_width": "relative (1 = twice as wide) at full flow",
          "widen": "relative widening of each descending threshold at the top (a)",
          "lift_pct": "% duty (lift of every descending threshold at the top, c)"},
-        {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds"),
+        {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds",
+        probe={"widen": 1.0}),
     CoilHeating(
         "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T, or the measured coil_temp_c; effective duty = "
         "duty / (1 + 0.00393 T), the PI refitted on it",
