@@ -71,10 +71,16 @@ def fit_recording(kind: str, rec: Recording, n: int | None = None) -> FittedMode
     """Fit ``kind`` to a valve recording (duty in, flow out); one without enough rows or excitation is refused."""
     check_fittable(rec)
     try:
-        return fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm, n=n, source=rec.path)
+        model = fit_model(kind, rec.t_s, rec.duty_pct, rec.flow_lpm, n=n, source=rec.path)
     except InputError as exc:  # a kind's own refusal ("preisach-cont: the input turns too rarely"): name the file
         text = str(exc)
         raise InputError(text if text.startswith(rec.path) else f"{rec.path}: {text}") from None
+    supply = rec.columns.get("supply_bar")
+    if supply is not None:
+        # the supply the flow was identified at (bar gauge): choked flow is proportional to the upstream
+        # absolute pressure, so a recording at another supply is held against the model at this one
+        model.meta["supply_bar"] = float(np.mean(supply))
+    return model
 
 
 def evaluate(model: FittedModel, x: np.ndarray, y: np.ndarray) -> Metrics:

@@ -128,6 +128,18 @@ def test_supply_pressure_exponent_is_near_choked_flow():
     assert 0.6 < p["exponent"] < 1.5
 
 
+def test_a_model_file_is_held_at_the_supply_it_was_identified_at():
+    """A model file's flow is at its identification supply (its meta), and the supply law is referred
+    to it: the recording's mean supply droops below it with the flow, and a baseline held fixed cannot
+    take up that gain, which an offset and a heating then did (offset 2.5 for 1.2, a false heating)."""
+    G = pytest.importorskip("diagnose_gross")
+    model = load_model(S.MODEL_JSON)
+    assert model.meta["supply_bar"] == pytest.approx(3.0, abs=0.02)
+    probe = G.Probe("plant", (("supply_pressure", 0.2), ("sensor_offset", 1.2)), "paper", 42, 0.3)
+    d = diagnose_response(G.record(probe), model)
+    assert G.judge(probe, d) == []
+
+
 # -- recordings made without plant_sim (bench/diagnose_foreign.py): the diagnosis is built for the physics --
 
 @pytest.mark.parametrize("exc", ["breaths", "chirp"])

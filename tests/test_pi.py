@@ -10,7 +10,7 @@ from models.fitting import evaluate, fit_model, fit_recording
 from models.model import FittedModel, load_model, save_model
 from models.pi import PIModel, fit_pi, regressors, thresholds
 from models.preprocess import preprocess
-from models.recording import InputError, read_recording
+from models.recording import InputError, Recording, read_recording
 from tests.conftest import growing_sine
 
 
@@ -104,6 +104,14 @@ def test_bad_model_file_is_one_line(tmp_path, content, words):
     p.write_text(content)
     with pytest.raises(InputError, match=words):
         load_model(p)
+
+
+def test_a_model_file_records_the_supply_it_was_identified_at(bench_identification):
+    rec = read_recording(bench_identification)
+    model = fit_recording("pi", rec)
+    assert model.meta["supply_bar"] == pytest.approx(float(np.mean(rec.columns["supply_bar"])))
+    without = Recording(rec.path, {k: v for k, v in rec.columns.items() if k != "supply_bar"})
+    assert "supply_bar" not in fit_recording("pi", without).meta
 
 
 def test_fit_on_bench_is_no_worse_than_plain_least_squares_of_the_paper(bench_identification):

@@ -108,6 +108,15 @@ class Base:
     def root(self) -> "Base":
         return self.parent or self
 
+    @property
+    def supply_ref_bar(self) -> float | None:
+        """The supply (bar gauge) a model file was identified at, if it records it
+        (:func:`models.fitting.fit_recording`); ``None`` for a refitted PI, whose gain is refitted."""
+        if self.refit:
+            return None
+        value = self.root.model.meta.get("supply_bar")
+        return None if value is None else float(value)
+
     def _cached(self, key, make, keep: int = 4):
         """``make()`` cached under ``key``; at most ``keep`` entries of its kind (``key[0]``) besides
         those of the raw duty (an entry of operator outputs is N x m)."""
@@ -467,7 +476,7 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
         cols += [F, np.ones(n), loop, slope, *epochs.T]
         names += ["gain", "offset", "loop_width", "duty_scale"] + ["memory"] * epochs.shape[1]
         F = np.zeros(n)
-    valve_ctx = Columns(sig, ref, lift, slope)
+    valve_ctx = Columns(sig, ref, lift, slope, supply_ref_bar=base.supply_ref_bar)
     for w, p in chain.items():
         for col in VOCABULARY[w].valve_columns(valve_ctx, p):
             cols.append(col)
@@ -509,7 +518,7 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
         ref = X[:, 0] if base.refit else through_dynamics(ref_v, sig, chain)
         if not base.refit:
             F = ref
-    sensor_ctx = Columns(sig, valve_ctx.flow_lpm, lift, slope, ref)
+    sensor_ctx = Columns(sig, valve_ctx.flow_lpm, lift, slope, ref, base.supply_ref_bar)
     extra = []
     for w, p in chain.items():
         for col in VOCABULARY[w].sensor_columns(sensor_ctx, p):

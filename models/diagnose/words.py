@@ -43,6 +43,9 @@ class Columns:
         ``x dq/dx`` of the baseline along the input history.
     at_sensor_lpm : ndarray
         ``flow_lpm`` through the dead zone, delay and lag of the chain (for sensor-side columns).
+    supply_ref_bar : float, optional
+        The supply (bar gauge) the baseline's flow is at: a model file's identification supply, if it
+        records one (:attr:`.design.Base.supply_ref_bar`).
     """
 
     sig: Signals
@@ -50,6 +53,7 @@ class Columns:
     lift_lpm: np.ndarray
     slope_lpm: np.ndarray
     at_sensor_lpm: np.ndarray | None = None
+    supply_ref_bar: float | None = None
 
 
 @dataclass(frozen=True)
@@ -452,10 +456,13 @@ class SupplyPressure(Word):
         return None if sig.supply_bar is not None else "no varying supply_bar column: the pressure cannot be seen"
 
     def valve_columns(self, ctx, params):
-        # q ((p + p_atm) / (p_mean + p_atm))**n ~ q (1 + n ln(...)): the supply wanders by a few per cent
-        # of the absolute pressure, so the exponent n enters linearly
+        # q ((p + p_atm) / (p_ref + p_atm))**n ~ q (1 + n ln(...)): the supply wanders by a few per cent
+        # of the absolute pressure, so the exponent n enters linearly. p_ref is the supply the baseline's
+        # flow is at: a model file's own (held fixed, the baseline cannot take up a mean supply that
+        # droops below it); a refitted PI's gain takes up the mean, so there it is the mean
         sig = ctx.sig
-        gain = fx.pressure_gain(sig.supply_bar, float(np.mean(sig.supply_bar)), 1.0)
+        ref_bar = ctx.supply_ref_bar if ctx.supply_ref_bar is not None else float(np.mean(sig.supply_bar))
+        gain = fx.pressure_gain(sig.supply_bar, ref_bar, 1.0)
         return [np.clip(ctx.flow_lpm, 0.0, None) * np.log(gain)]
 
     def physical(self, params, coef, sig, base):
