@@ -384,6 +384,24 @@ def test_asymmetry_on_breaths_resting_below_the_opening_is_not_identifiable():
     assert "asymmetric_hysteresis" not in d.model["not_identifiable"]
 
 
+@pytest.mark.slow
+def test_gross_asymmetry_on_a_recording_resting_below_the_opening():
+    # breaths resting at 34 %, below the valve's opening, then a sweep and random holds: the
+    # widening starts where the valve opens (the simulated valve's loop starts at 38 %), not at the
+    # recording's 34 %, where it would lift every descending threshold by a constant the refitted
+    # PI takes out of its own loop, and the extra width relative to that loop would come out half
+    # as large again (x6 named 9.5)
+    import diagnose_gross as G
+
+    p = G.Probe("plant", (("asymmetric_hysteresis", 6.0),), "mixed", 3022, 0.5)
+    named = {f.effect: f for f in diagnose_response(G.record(p)).findings}
+    assert set(named) == {"asymmetric_hysteresis"}
+    f = named["asymmetric_hysteresis"]
+    assert f.params["extra_width"] == pytest.approx(6.0, rel=0.25)
+    assert 36.0 < f.params["start_pct"] < 40.0
+    assert f.holdout_rmse_after < f.holdout_rmse_before
+
+
 def test_backward_check_drops_a_word_a_later_one_explains():
     # a 40 ms lag on steps. Say a 20 ms delay was named first (it took up part of the lag) and the lag
     # after it: with the lag in place the delay no longer earns its margin, so the backward check on

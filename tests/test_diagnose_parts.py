@@ -183,6 +183,23 @@ def test_descending_lift_of_a_zero_threshold_only_on_descents():
     np.testing.assert_allclose(lift[59:], (x[58] + 1) / 2)  # a hold keeps the lift of the last descent
 
 
+def test_a_widening_that_starts_above_the_bottom_leaves_the_operators_below_it_alone():
+    # a zero-threshold operator driven down from the top: its descending bound is x + lift s, s the
+    # position above where the widening starts (0 below it), so it holds the top until that bound
+    # comes down to it, then sits lifted by lift s above the start and on the input below it
+    from models.diagnose.design import pi_columns
+
+    r, lift, start = np.array([0.0]), 0.3, 0.25
+    x = np.r_[np.linspace(-1, 1, 81), np.linspace(1, -1, 81)[1:]]
+    y = fx.generalized_play(r, x, 0.0, lift, start)[:, 0]
+    down = slice(81, None)
+    s = np.clip(((x[down] + 1) / 2 - start) / (1 - start), 0, 1)
+    np.testing.assert_allclose(y[down], np.minimum(1.0, x[down] + lift * s), atol=1e-12)
+    below = x[down] <= 2 * start - 1
+    assert below.sum() > 10
+    np.testing.assert_allclose(y[down][below], pi_columns(r, x)[down, 0][below], atol=1e-12)
+
+
 @pytest.mark.parametrize("h", [0.05, 0.2, 0.4])
 def test_major_loop_half_width_of_one_operator_is_its_threshold(h):
     from models.diagnose.design import major_loop_half_width

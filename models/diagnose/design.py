@@ -135,7 +135,7 @@ class Base:
         if self.refit:
             return self._cached(("q", id(sig), key), lambda: self.model.y_scale.from_unit(
                 self.regressors(sig, chain) @ self.shape.w + self.shape.offset))
-        if any(a) and isinstance(self.model.core, PIModel):
+        if any(a[:2]) and isinstance(self.model.core, PIModel):
             # the model file run as the simulated valve runs it (its input held to the identified
             # range, closing below it, no reverse flow), plus what the lifted descending thresholds
             # change in its own operators on that held input: a PI's output is linear in them
@@ -220,7 +220,7 @@ class Base:
             y0 = self.shape.y0
             if sig.rest_pct is not None:  # at rest at the duty before the first row, within the input range
                 y0 = np.full_like(self.shape.r, np.clip(self.shape_scale.to_unit(sig.rest_pct), -1.0, 1.0))
-            if any(a):
+            if any(a[:2]):
                 return fx.generalized_play(self.shape.r, x_unit, *a, y0=y0)
             return pi_columns(self.shape.r, x_unit, y0)
 
@@ -278,9 +278,9 @@ def simulated(model: FittedModel, duty_pct: np.ndarray, rate_hz: float, rest_pct
 
 
 def inputs(sig: Signals, chain: dict) -> tuple:
-    """The duty the hysteresis core sees under ``chain`` (%), the ``(widen, lift)`` of its descending
-    thresholds (:func:`effects.generalized_play`), and a hashable key of the two."""
-    key, a, warm = [], (0.0, 0.0), None
+    """The duty the hysteresis core sees under ``chain`` (%), the ``(widen, lift, start)`` of its
+    descending thresholds (:func:`effects.generalized_play`), and a hashable key of the two."""
+    key, a, warm = [], (0.0, 0.0, 0.0), None
     for w, p in chain.items():
         word = VOCABULARY[w]
         if word.input_side and word.is_exact(p):

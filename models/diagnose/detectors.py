@@ -263,7 +263,7 @@ def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base
     d, b = design(w.word, base, sig, ch, folds)
     theta = fit_final(d, sig.flow_lpm, folds.train)
     coef = _coef(w.word, d, theta)
-    starts = w.exact_starts(screen.params, coef if coef is not None else 0.0, sig, b)
+    starts = w.exact_starts(screen.params, coef if coef is not None else 0.0, sig, b, chain)
     if not starts:
         return None
     rows = _subsample(folds.train, START_ROWS)

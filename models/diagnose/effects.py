@@ -328,14 +328,18 @@ def _generalized(r, x, scale, lift, state):
     return out
 
 
-def generalized_play(r: np.ndarray, x_unit: np.ndarray, widen: float, lift: float, y0=np.nan) -> np.ndarray:
+def generalized_play(r: np.ndarray, x_unit: np.ndarray, widen: float, lift: float, start: float = 0.0,
+                     y0=np.nan) -> np.ndarray:
     """Play operators whose descending thresholds grow with the input level (Al Janaideh, Rakheja
-    & Su's generalized PI): ``r_i (1 + widen s) + lift s``, ``s = (x + 1) / 2`` the position in
-    the input range, so at the top every descending threshold is ``r_i (1 + widen) + lift``.
+    & Su's generalized PI): ``r_i (1 + widen s) + lift s``, ``s`` the position in the input range
+    above where the widening starts (0 there and below, 1 at the top), so at the top every
+    descending threshold is ``r_i (1 + widen) + lift``.
 
     ``widen`` widens each operator in proportion to its threshold; ``lift`` adds one amount to
-    all (what lifts the zero-threshold operator too). Operators start by Eq. (3) from ``y0``
-    (NaN: at rest at the first input).
+    all (what lifts the zero-threshold operator too). ``start`` is where the widening starts, as a
+    position ``(x + 1) / 2`` in the input range: a valve's loop starts where its plunger leaves its
+    seat, which a recording resting below the valve's opening places above its own bottom.
+    Operators start by Eq. (3) from ``y0`` (NaN: at rest at the first input).
 
     Parameters
     ----------
@@ -345,12 +349,14 @@ def generalized_play(r: np.ndarray, x_unit: np.ndarray, widen: float, lift: floa
         Normalized input.
     widen, lift : float
         Relative and absolute (normalized units) widening of the descending thresholds at the top.
+    start : float
+        Position in the input range (0..1) below which the thresholds are not widened.
 
     Returns
     -------
     ndarray, shape (N, m)
     """
     x = np.ascontiguousarray(x_unit, dtype=np.float64)
-    s = np.clip((x + 1.0) / 2.0, 0.0, 1.0)
+    s = np.clip(((x + 1.0) / 2.0 - start) / (1.0 - start), 0.0, 1.0)
     r = np.ascontiguousarray(r, dtype=np.float64)
     return _generalized(r, x, 1.0 + widen * s, lift * s, play.init(r, x[0], y0))

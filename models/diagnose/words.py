@@ -122,9 +122,9 @@ class Word:
         """``None``, or why the word cannot be tested on this recording with this baseline."""
         return None
 
-    def exact_starts(self, params: dict, coef: float, sig: Signals, base) -> list:
+    def exact_starts(self, params: dict, coef: float, sig: Signals, base, chain: dict) -> list:
         """Starts of the exact law's refinement from a screen (its grid point and column
-        coefficient); empty when the linearized law is the law."""
+        coefficient) joining the named words of ``chain``; empty when the linearized law is the law."""
         return []
 
     def bounds(self, sig: Signals, base) -> dict:
@@ -146,9 +146,9 @@ class Word:
         return None
 
     def threshold_widening(self, params: dict) -> tuple:
-        """``(widen, lift)`` of the descending thresholds at the top of the range (exact asymmetry,
-        :func:`effects.generalized_play`)."""
-        return 0.0, 0.0
+        """``(widen, lift, start)`` of the descending thresholds: their widening at the top of the
+        range and where in it the widening starts (exact asymmetry, :func:`effects.generalized_play`)."""
+        return 0.0, 0.0, 0.0
 
     def valve_columns(self, ctx: Columns, params: dict) -> list:
         """Linear columns at the valve, before the dead zone and the dynamics."""
@@ -249,6 +249,9 @@ LAW_RISE55_K = 250.0
 LARGEST_SHARE = 0.1
 #: ... explaining at least this share of the residual's mean square beyond the noise there.
 MIN_EXPLAINED_SHARE = 0.6
+#: Box (position in the input range, 0..1) where an asymmetry's widening may start on a recording
+#: resting below the valve's opening.
+START_BOUNDS = (1e-3, 0.5)
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
 #: Duty band (%) above a cracking duty where the flow must have jumped.
@@ -281,23 +284,48 @@ def held_levels(duty_pct: np.ndarray, hi_pct: float) -> np.ndarray:
 class AsymmetricHysteresis(Word):
     """Descending thresholds widened with the input level (generalized PI)."""
 
-    def exact_starts(self, params, coef, sig, base):
+    def exact_starts(self, params, coef, sig, base, chain):
         from .design import major_loop_half_width
 
         # each operator widened in proportion to its threshold, or all lifted by one amount (the
         # zero-threshold operator too): the exact law has both, started on a coarse grid
         h = major_loop_half_width(base.shape.r, base.lift_w)
         first = float(np.clip(coef / h if h > 1e-3 else 0.1, 0.01, 20.0))
-        return [{"widen": a, "lift": c * h} for a in sorted({first, 0.1, 0.5, 2.0}) for c in (1e-3, 0.3, 1.0, 3.0, 10.0)]
+        at = {} if "dead_zone" in chain else self._opening(sig, base)
+        return [{"widen": a, "lift": c * h, **at} for a in sorted({first, 0.1, 0.5, 2.0})
+                for c in (1e-3, 0.3, 1.0, 3.0, 10.0)]
+
+    @staticmethod
+    def _opening(sig: Signals, base) -> dict:
+        """``{"start": position}`` where the valve opens in the input range of a PI fitted on a
+        recording that rests below the opening (the duty that best splits its rows into shut below
+        and open above), refined from there; empty when no row is shut: the widening starts at the
+        bottom of the range.
+
+        A widening counted from a rest below the opening lifts every descending threshold by a
+        constant where the valve opens, which the PI refitted with it takes out of its own loop: the
+        loop's half-width shrinks and the extra width relative to it doubles (x9.7 named 20.6 on a
+        mixed recording resting at 34 %, the simulated valve's loop starting at 38 %). Not beside a
+        named dead zone: it shuts the valve after the hysteresis core, whose own opening it hides
+        (a start placed at a 44 % cracking duty named x8 as 3.6)."""
+        shut = base.shut(sig)
+        if not shut.any() or shut.all():
+            return {}
+        order = np.argsort(sig.duty_pct, kind="stable")
+        x, opened = sig.duty_pct[order], ~shut[order]
+        # misplaced rows with the split after row i: open rows at or below it, shut rows above it
+        wrong = np.cumsum(opened) + (np.sum(~opened) - np.cumsum(~opened))
+        pos = (float(base.unit_input(x[int(np.argmin(wrong))])) + 1.0) / 2.0
+        return {"start": float(np.clip(pos, START_BOUNDS[0] * 1.1, START_BOUNDS[1] / 1.1))}
 
     def bounds(self, sig, base):
-        return {"widen": (1e-3, 40.0), "lift": (1e-4, 4.0)}
+        return {"widen": (1e-3, 40.0), "lift": (1e-4, 4.0), "start": START_BOUNDS}
 
     def is_exact(self, params):
         return "widen" in params
 
     def threshold_widening(self, params):
-        return float(params.get("widen", 0.0)), float(params.get("lift", 0.0))
+        return float(params.get("widen", 0.0)), float(params.get("lift", 0.0)), float(params.get("start", 0.0))
 
     def valve_columns(self, ctx, params):
         return [] if self.is_exact(params) else [ctx.lift_lpm]
@@ -331,8 +359,11 @@ class AsymmetricHysteresis(Word):
         if self.is_exact(params):
             # descending thresholds r (1 + widen) + lift at the top: relative extra width over the
             # loop's half-width h
-            return {"extra_width": float(params["widen"] + params["lift"] / h), "widen": float(params["widen"]),
-                    "lift_pct": float(params["lift"]) * base.shape_scale.half_range}
+            out = {"extra_width": float(params["widen"] + params["lift"] / h), "widen": float(params["widen"]),
+                   "lift_pct": float(params["lift"]) * base.shape_scale.half_range}
+            if "start" in params:
+                out["start_pct"] = float(base.shape_scale.from_unit(2.0 * params["start"] - 1.0))
+            return out
         p = {"lift_pct": float(coef) * base.shape_scale.half_range}
         if h > 1e-3:
             p["extra_width"] = float(coef) / h
@@ -350,7 +381,7 @@ class CoilHeating(Word):
         # start: the coil's rise at the first sample as a fraction of the steady rise there (0 = cold start)
         return {"tau_s": tau[tau <= 2.0 * _span(sig)], "start": np.array([0.0, 1.0])}
 
-    def exact_starts(self, params, coef, sig, base):
+    def exact_starts(self, params, coef, sig, base, chain):
         if self.is_exact(params):
             return []
         # the first-order column saturates on a large rise and biases the screen's time constant,
@@ -745,7 +776,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         "the input level s (generalized PI), the PI refitted with it",
         {"extra_width": "relative (1 = twice as wide) at full flow",
          "widen": "relative widening of each descending threshold at the top (a)",
-         "lift_pct": "% duty (lift of every descending threshold at the top, c)"},
+         "lift_pct": "% duty (lift of every descending threshold at the top, c)",
+         "start_pct": "% duty (where the widening starts, on a recording resting below the opening)"},
         {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds",
         probe={"widen": 1.0}),
     CoilHeating(
