@@ -566,14 +566,18 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
             return rnd + 1
         if accepted is None:
             return rnd + 1
+        accepted, alt = _lag_or_delay(accepted, cands, passing, sel.chain, cur, sig, folds, noise, margins)
         c, sel.chain, phys = accepted
-        prev = cur
         # the PI's weights refitted under the named effects, so the next tests start from its best
         cur = c.base = unbend(c.base or cur, sig, sel.chain, folds.train)
         sel.params[c.word] = phys
         sel.steps.append(c)
         sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, NAMED))
-        done = {c.word} | _alternative(c, phys, cands, passing, sel, prev, sig, folds, noise, rnd, margins)
+        done = {c.word}
+        if alt is not None:
+            sel.alternatives[c.word] = alt
+            sel.trace.append(_decision(alt[0], rnd, _need(alt[0], sel, margins), margins, ALTERNATIVE))
+            done.add(alt[0].word)
         # a word refused is tried once more after the next word is named: a larger effect not yet
         # modelled may have hidden its law (a coil's heating under a clip the PI bent through reads
         # as no heating, or as a dead zone); refused a second time, it is dropped
@@ -779,25 +783,35 @@ def _masking(refused: list, accepted) -> tuple | None:
     return max(over, key=lambda cw: cw[0].gain) if over else None
 
 
-def _alternative(c: Candidate, phys: dict, cands: dict, passing: list, sel: Selection, prev: Base, sig: Signals,
-                 folds: Folds, noise: float, rnd: int, margins: Margins) -> set:
-    """When the recording cannot tell a lag from a delay, record the other as the named one's
-    alternative; returns the words that need no further test."""
+def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur: Base, sig: Signals, folds: Folds,
+                  noise: float, margins: Margins) -> tuple:
+    """When the recording cannot tell a lag from a delay, both: ``(named, alternative)``, each
+    ``(candidate, chain, physical params)`` as :func:`_accept` gives it, the named one the law whose
+    exact form has the lower held-out error; else ``(accepted, None)``.
+
+    Their screens rank them by their linearized columns, which are one column to first order
+    (``-tau dq/dt``): only the exact laws (a lag's smoothing, a delay's shift of the steps) tell them
+    apart, and the one reported is the one that explains the recording better.
+    """
+    c, full, phys = accepted
     if c.word not in DYNAMIC:
-        return set()
+        return accepted, None
     other = cands.get(DYNAMIC[1 - DYNAMIC.index(c.word)])
     # within a sample a lag and a delay are one thing: how late the sample is depends on
     # when in the period the flow was read (a lag whose command moves between samples
     # answers as an interpolated delay)
     sub_sample = phys[TIME_PARAM[c.word]] * sig.rate_hz < 1.0
     if other is None or not any(o is other for o in passing) or not (c.gain - other.gain < AMBIGUOUS or sub_sample):
-        return set()
-    alt = _accept(other, {w: p for w, p in sel.chain.items() if w != c.word}, prev, sig, folds, noise, margins)
+        return accepted, None
+    alt = _accept(other, chain, cur, sig, folds, noise, margins)
     if isinstance(alt[0], str):
-        return set()
-    sel.alternatives[c.word] = alt
-    sel.trace.append(_decision(other, rnd, _need(other, sel, margins), margins, ALTERNATIVE))
-    return {other.word}
+        return accepted, None
+    y = sig.flow_lpm
+
+    def held_out_sse(named: dict) -> float:
+        return float(cross_validate(build(unbend(cur, sig, named, folds.train), sig, named), y, folds).test.sum())
+
+    return (alt, accepted) if held_out_sse(alt[1]) < held_out_sse(full) else (accepted, alt)
 
 
 def _memory_steps(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
