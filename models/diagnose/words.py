@@ -127,6 +127,12 @@ class Word:
         coefficient) joining the named words of ``chain``; empty when the linearized law is the law."""
         return []
 
+    def restarts(self, sig: Signals, base) -> list:
+        """Starts of the exact law's refinement over its whole range, independent of a screen, from
+        which it is refined again once the other words are named (:func:`models.diagnose.detectors._backfit`);
+        empty: refined from where it was named."""
+        return []
+
     def bounds(self, sig: Signals, base) -> dict:
         """``{parameter: (lo, hi)}`` of the exact law's parameters refined by least squares (log scale)."""
         return {}
@@ -382,11 +388,14 @@ class CoilHeating(Word):
         return {"tau_s": tau[tau <= 2.0 * _span(sig)], "start": np.array([0.0, 1.0])}
 
     def exact_starts(self, params, coef, sig, base, chain):
-        if self.is_exact(params):
+        # the first-order column saturates on a large rise and biases the screen's time constant
+        return [] if self.is_exact(params) else self.restarts(sig, base)
+
+    def restarts(self, sig, base):
+        if sig.coil_temp_c is not None:
             return []
-        # the first-order column saturates on a large rise and biases the screen's time constant,
-        # and rise and time constant trade off along a narrow valley: a grid of the exact law
-        # (and a warm or a cold start: the screen's choice is unreliable when its column saturates)
+        # rise and time constant trade off along a narrow valley: a grid of the exact law (and a warm
+        # or a cold start: the screen's choice is unreliable when its column saturates)
         g = self.grid(sig, base)
         rises = (4.0, 10.0, 20.0, 35.0, 55.0, 100.0, 180.0)
         return [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
