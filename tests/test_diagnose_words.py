@@ -200,6 +200,19 @@ def test_saturation_needs_the_flow_to_flatten():
     assert "does not flatten" in sat.support(_sig(duty, before), {"full_open_lpm": 150.0}, before, 0.5)
 
 
+def test_saturation_bounds_the_flow_everywhere():
+    # a loading curve that only bends over its top (the model before it too steep there) is near a
+    # clip at its median, but rises on past it: no full-open flow bounds it
+    sat = VOCABULARY["saturation"]
+    duty = np.linspace(40, 70, 3000)
+    before = (duty - 35) * 5  # up to 175 L/min
+    bent = np.where(before > 150.0, 150.0 + 0.2 * (before - 150.0), before)
+    assert "exceeds the full-open flow" in sat.support(_sig(duty, bent), {"full_open_lpm": 150.0}, before, 0.5)
+    # a clip with the noise of the sensor on it is one
+    noisy = np.minimum(before, 150.0) + 0.5 * np.random.default_rng(1).normal(size=len(duty))
+    assert sat.support(_sig(duty, noisy), {"full_open_lpm": 150.0}, before, 0.5) is None
+
+
 def test_thermal_fit_recovers_the_heating_law_from_a_measured_temperature():
     rate = 10.0
     duty = np.r_[np.full(3000, 60.0), np.full(3000, 45.0)]

@@ -260,6 +260,9 @@ MIN_EXPLAINED_SHARE = 0.6
 START_BOUNDS = (1e-3, 0.5)
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
+#: Share of the rows a saturation clips beyond which rows measured above its full-open flow (by more
+#: than the noise band) refute it (sensor spikes aside, a clipped valve passes no more).
+OVER_CLIP_SHARE = 0.01
 #: Duty band (%) above a cracking duty where the flow must have jumped.
 JUMP_BAND_PCT = 2.0
 #: Step (% duty) to which a cracking duty is refined: a breath's rise crosses a per cent of duty in a
@@ -740,6 +743,14 @@ class Saturation(Word):
         if dev > lim:
             return (f"the flow does not flatten at {params['full_open_lpm']:.4g} L/min where the model exceeds it "
                     f"(median distance {dev:.3g} L/min, within {lim:.3g} needed)")
+        # and the full-open flow bounds the flow everywhere (a lag or a delay passes no more than it):
+        # a clip placed just under the top of a loading curve the baseline cannot bend to (a PI of
+        # 50 operators too steep over the last per cent of duty) leaves the highest rows measured
+        # far above it (12x the noise, on a tenth of the rows it clips)
+        over = int(np.sum(sig.flow_lpm > params["full_open_lpm"] + lim))
+        if over > max(MIN_END_ROWS, OVER_CLIP_SHARE * top.sum()):
+            return (f"the flow exceeds the full-open flow {params['full_open_lpm']:.4g} L/min by more than "
+                    f"{lim:.3g} L/min on {over} rows (up to {float(np.max(sig.flow_lpm)):.4g} L/min)")
         return None
 
 
