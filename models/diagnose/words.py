@@ -141,6 +141,13 @@ class Word:
         """Whether ``params`` select the exact nonlinear law (else the linearized columns)."""
         return False
 
+    def at_rest(self, sig: Signals, params: dict, base) -> dict | None:
+        """The setting of the law that acts only where the valve rests shut by itself at the
+        recording's lowest duty (``base.shut``: none for a model file), or ``None`` (the law does not
+        act there, or the valve is open at its rest): ``params`` must explain more than it
+        (:func:`models.diagnose.detectors._beyond_rest`)."""
+        return None
+
     def settle(self, sig: Signals, params: dict, chain: dict) -> dict:
         """``params`` moved to where the recording itself places them among settings the fit cannot
         tell apart (``chain``: the named words it joins); ``params`` by default."""
@@ -585,6 +592,12 @@ class DeadZone(Word):
 
     def flow_gain(self, sig, params):
         return fx.open_mask(sig.duty_pct, params["cracking_pct"])
+
+    def at_rest(self, sig, params, base):
+        rest = float(np.min(sig.duty_pct))
+        if params["cracking_pct"] <= rest + 1e-6 or np.mean(base.shut(sig)[sig.duty_pct <= rest]) < 0.5:
+            return None
+        return {"cracking_pct": rest + 1e-6}
 
     def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
         below = int(np.sum(sig.duty_pct <= params["cracking_pct"]))
