@@ -15,6 +15,8 @@ from tests.zenoh_helpers import ROOT
 KILL_IN_THE_MIDDLE = """
 import os, signal, sys
 from models.atomicfile import atomic_open
+# Ctrl-C as an interactive writer gets it: a child of a background job starts with SIGINT ignored
+signal.signal(signal.SIGINT, signal.default_int_handler)
 with atomic_open(sys.argv[1]) as fh:
     fh.write("new, half written")
     fh.flush()
