@@ -310,6 +310,29 @@ def test_gross_dead_zone_behind_a_delay_on_breaths():
     assert named["transport_delay"].params["delay_s"] == pytest.approx(0.04, rel=0.2)
 
 
+@pytest.mark.slow  # ~15 s
+def test_a_lag_and_a_delay_together_share_the_lateness():
+    # a 45 ms lag and a 25 ms delay behind a clip at 140 L/min (foreign chirp): the word named first took
+    # up the whole lateness (a 77 ms lag, the delay only its alternative); tested beside it with the
+    # lateness shared between the two, and the two refined together, each is named at its own size
+    G = pytest.importorskip("diagnose_gross")
+    p = G.Probe("foreign", (("valve_dynamics", 0.045), ("transport_delay", 0.025), ("saturation", 140.0)), "chirp",
+                4101, 0.5)
+    d = diagnose_response(G.record(p))
+    assert G.judge(p, d) == []
+    assert all(f.alternative_to is None for f in d.findings)
+
+
+def test_a_lag_alone_is_not_shared_with_a_delay():
+    # a 60 ms lag on the foreign staircase: the delay tested beside it with the lateness shared explains
+    # nothing more (a lag's step response is no delayed one), and is not named
+    G = pytest.importorskip("diagnose_gross")
+    p = G.Probe("foreign", (("valve_dynamics", 0.06),), "staircase", 4115, 0.3)
+    d = diagnose_response(G.record(p))
+    assert G.judge(p, d) == []
+    assert [f.effect for f in d.findings] == ["valve_dynamics"]
+
+
 def test_a_valve_opening_by_itself_on_breaths_shows_no_jump():
     # plant_sim's valve opens from zero flow with a steep start that flattens (some 4 then 2 L/min
     # per % duty): breaths sampling that start coarsely show no cracking duty at any duty

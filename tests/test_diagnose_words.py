@@ -275,3 +275,36 @@ def test_asymmetry_must_explain_the_residual_where_its_widening_is_largest():
     elsewhere = np.where(largest, 0.0, delta)
     why = asym.support(_sig(duty, before + elsewhere + noise), params, before, 0.5, after_lpm=after)
     assert "where its correction is largest" in why
+
+
+@given(tau=st.floats(0.002, 0.3), phase=st.sampled_from([0.0, 0.5, 1.0]), delay=st.floats(0.001, 0.2),
+       rate=st.sampled_from([50.0, 100.0, 200.0]))
+@settings(max_examples=30, deadline=None)
+def test_lateness_is_the_first_moment_of_the_time_response(tau, phase, delay, rate):
+    from models.diagnose.detectors import split, without
+
+    impulse = np.zeros(int(rate * (40 * tau + delay)) + 50)
+    impulse[10] = 1.0
+    k = (np.arange(len(impulse)) - 10) / rate
+    lag, late = VOCABULARY["valve_dynamics"], VOCABULARY["transport_delay"]
+    for word, p in ((lag, {"tau_s": tau, "phase": phase}), (late, {"delay_s": delay})):
+        h = word.dynamics(impulse, rate, p)
+        assert word.lateness_s(p, rate) == pytest.approx(k @ h / h.sum(), abs=1e-9)
+        assert word.with_lateness(p, word.lateness_s(p, rate), rate) == pytest.approx(p, rel=1e-9)
+    # a delay beside a named lag takes its share of the lag's lateness, and gives it back when it goes
+    chain = {"saturation": {"full_open_lpm": 120.0}, "valve_dynamics": {"tau_s": tau, "phase": phase}}
+    sig = _sig(np.full(100, 50.0), np.zeros(100), rate)
+    whole = lag.lateness_s(chain["valve_dynamics"], rate)
+    shared = split("transport_delay", {"delay_s": delay}, chain, sig, None)
+    # the lag as it was, then at each phase of its grid, each as far as it can be made that early
+    phases = [phase] + list(lag.grid(sig, None)["phase"])
+    assert [s["valve_dynamics"]["phase"] for s in shared] == [p for p in phases if delay + p / rate < whole]
+    for s in shared:
+        assert lag.lateness_s(s["valve_dynamics"], rate) + delay == pytest.approx(whole, rel=1e-9)
+        # without the delay: the lag with its own share only, or made as late as the two were
+        kept, back = without({**s, "transport_delay": {"delay_s": delay}}, "transport_delay", rate)
+        assert kept == s and list(back) == list(chain) and back["saturation"] == chain["saturation"]
+        assert lag.lateness_s(back["valve_dynamics"], rate) == pytest.approx(whole, rel=1e-9)
+    if delay + phase / rate < whole:  # the lag as it was: given the delay's share back, it is as it was
+        assert without({**shared[0], "transport_delay": {"delay_s": delay}}, "transport_delay", rate)[-1][
+            "valve_dynamics"] == pytest.approx(chain["valve_dynamics"], rel=1e-6)

@@ -40,11 +40,12 @@ from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
 from .design import build, clip, cross_validate, fit_baseline, fit_final, fixed_base, memory_start_s, unbend
-from .detectors import AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, misfit, select_effects
+from .detectors import (AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, misfit, select_effects,
+                        without)
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
 from .signals import Signals, noise_lpm, raw_signals, running_rows, work_signals
-from .trace import NAMED, UNCONFIRMED, Decision, explain
+from .trace import ALTERNATIVE, NAMED, UNCONFIRMED, Decision, explain
 from .words import VOCABULARY
 
 
@@ -302,7 +303,7 @@ def _findings(sel: Selection, words: list, fits: "_ChainFits", raw: Signals, hol
             alt_pred = fits.predict(alt_chain)
             why = _unconfirmed(y[hold] - prev[hold], alt_pred[hold] - prev[hold])
             if why:
-                d = next(d for d in reversed(sel.trace) if d.word == a)
+                d = next(d for d in reversed(sel.trace) if d.word == a and d.outcome == ALTERNATIVE)
                 unconfirmed = unconfirmed + [Decision(**{**d.to_dict(), "outcome": UNCONFIRMED,
                                                          "why": f"alternative to {w}: {why}"})]
                 alt_pred = None
@@ -383,9 +384,21 @@ class _ChainFits:
         self._memo = {"[]": (baseline_lpm, None, None, None)}
 
     def chain(self, words) -> dict:
-        """The search's chain restricted to ``words`` (in the chain's order)."""
-        keep = set(words)
-        return {w: p for w, p in self.sel.chain.items() if w in keep}
+        """The search's chain restricted to ``words`` (in the chain's order); a lag or delay left out
+        leaves its share of the time response to the other if kept and that fits the training rows
+        better (:func:`.detectors.without`)."""
+        keep, chain = set(words), dict(self.sel.chain)
+        for w in self.sel.chain:
+            if w not in keep:
+                options = without(chain, w, self.sig.rate_hz)
+                chain = options[0] if len(options) == 1 else min(options, key=self._train_sse)
+        return chain
+
+    def _train_sse(self, chain: dict) -> float:
+        """Squared error of ``chain``'s fit on the training rows (working grid)."""
+        _, d, theta, _ = self._fit(chain)
+        e = (self.sig.flow_lpm - d.predict(theta))[self.folds.train]
+        return float(e @ e)
 
     def _fit(self, chain: dict) -> tuple:
         key = repr(list(chain.items()))

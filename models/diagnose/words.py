@@ -180,6 +180,17 @@ class Word:
         of :meth:`dynamics`; noisier than its input)."""
         return y
 
+    def lateness_s(self, params: dict, rate_hz: float) -> float | None:
+        """How late (s) the word's time response makes the flow on average (the first moment of its
+        impulse response: what a smooth excitation sees of it, ``-lateness dq/dt`` to first order), or
+        ``None``: no time response."""
+        return None
+
+    def with_lateness(self, params: dict, lateness_s: float, rate_hz: float) -> dict | None:
+        """``params`` with the time parameter set so that :meth:`lateness_s` is ``lateness_s``, or
+        ``None`` when the law cannot be that late (or early)."""
+        return None
+
     def sensor_columns(self, ctx: Columns, params: dict) -> list:
         """Linear columns at the sensor, after the dynamics."""
         return []
@@ -533,6 +544,19 @@ class ValveDynamics(Word):
     def undo(self, y, rate_hz, params):
         return fx.lag_input(y, rate_hz, params["tau_s"], params.get("phase", 1.0))
 
+    def lateness_s(self, params, rate_hz):
+        if params["tau_s"] <= 0:
+            return 0.0  # (the identity)
+        # the recursion's pole a/(1 - a) samples, and the share of the previous sample's command
+        a = np.exp(-1.0 / (rate_hz * params["tau_s"]))
+        return float((a / (1.0 - a) + params.get("phase", 1.0)) / rate_hz)
+
+    def with_lateness(self, params, lateness_s, rate_hz):
+        pole = lateness_s * rate_hz - params.get("phase", 1.0)  # a / (1 - a), samples
+        if pole <= 0:
+            return None
+        return {**params, "tau_s": float(-1.0 / (rate_hz * np.log(pole / (1.0 + pole))))}
+
 
 @dataclass(frozen=True)
 class TransportDelay(Word):
@@ -546,6 +570,12 @@ class TransportDelay(Word):
 
     def undo(self, y, rate_hz, params):
         return fx.advanced(y, rate_hz, params["delay_s"])
+
+    def lateness_s(self, params, rate_hz):
+        return float(params["delay_s"])
+
+    def with_lateness(self, params, lateness_s, rate_hz):
+        return {**params, "delay_s": float(lateness_s)} if lateness_s > 0 else None
 
 
 @dataclass(frozen=True)
