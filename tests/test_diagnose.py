@@ -227,6 +227,57 @@ def test_gross_coil_heating_is_modelled_by_its_exact_law():
     assert f.holdout_rmse_after < 0.3 * f.holdout_rmse_before and f.slope > 0.7
 
 
+def test_a_warm_coils_effective_duty_is_held_at_the_valves_input_floor():
+    # the foreign valve is identified over 38-72 % and holds its input at 38 %; a chirp over 40-70 %
+    # with a coil 35 K warm drives the effective duty down to 36 %, where a PI fitted on the recording
+    # ran on down its loading curve (the rise read as 55 K). The valve passes flow at the chirp's
+    # lowest duty, so the heating law places the valve's input floor, and the rise comes out right
+    import diagnose_gross as G
+
+    p = G.Probe("foreign", (("coil_heating", 35.0),), "chirp", 3303, 1.0)
+    named = {f.effect: f for f in diagnose_response(G.record(p)).findings}
+    assert set(named) == {"coil_heating"}
+    params = named["coil_heating"].params
+    assert params["rise55_k"] == pytest.approx(35.0, rel=0.15)
+    assert params["floor_pct"] == pytest.approx(F.LO_PCT, abs=0.5)
+    # a valve shut at its lowest commanded duty (breaths resting at 30 %) stays shut below it: the
+    # flow shows no floor, and none is tried
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+    from models.diagnose.words import VOCABULARY
+
+    for rec, floor in ((G.record(p), True), (_plant_recording({"coil_heating": 30.0}, "breaths", 60.0), False)):
+        sig = work_signals(rec, None)
+        starts = VOCABULARY["coil_heating"].restarts(sig, fit_baseline(sig, make_folds(sig.t_s)))
+        assert any("floor_pct" in s for s in starts) == floor
+
+
+def test_a_valves_input_floor_must_fit_the_rows_it_holds():
+    # the foreign valve holds its input at 38 %: with its coil 35 K warm, the rows whose effective
+    # duty runs below it are fitted better held there than by the PI run on down its loading curve.
+    # A valve that opens with a jump just above the lowest duty (a concealed dead zone at 36 %) had
+    # its bottom rows held at a floor only to free the PI elsewhere: the floor fits them worse, at
+    # every warming and floor near that duty
+    import diagnose_gross as G
+    from models.diagnose.design import fit_baseline, memory_start_s
+    from models.diagnose.detectors import _holds
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+    from models.diagnose.words import VOCABULARY
+
+    def holds(rec, params):
+        sig = work_signals(rec, None)
+        folds = make_folds(sig.t_s, start_s=memory_start_s(sig))
+        return _holds(VOCABULARY["coil_heating"], params, {}, fit_baseline(sig, folds), sig, folds)
+
+    foreign = G.record(G.Probe("foreign", (("coil_heating", 35.0),), "chirp", 3303, 1.0))
+    assert holds(foreign, {"rise55_k": 35.0, "tau_s": F.COIL_TAU_S, "start": 0.0, "floor_pct": F.LO_PCT})
+    jump = S.record(S.make_case(("dead_zone",), "sines", seed=1, noise=0.25))
+    for rise_k, floor_pct in ((2.0, 35.99), (4.4, 35.9), (10.0, 35.5)):
+        assert not holds(jump, {"rise55_k": rise_k, "tau_s": 280.0, "start": 1.0, "floor_pct": floor_pct})
+
+
 def test_a_staircase_at_the_valves_memory_epochs_is_not_read_as_heat():
     # plant_sim's valve holds the highest breath so far in its widest operators: its flow steps at
     # each new highest breath (by 1.2 L/min, then 0.23, on this seed), which the 50-operator PI gets

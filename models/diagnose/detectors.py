@@ -408,12 +408,19 @@ def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, fo
     box = w.bounds(sig, base)
     groups = {}
     for p in starts:
-        groups.setdefault(tuple(sorted((k, v) for k, v in p.items() if k not in box)), []).append(p)
+        # (and each set of refined parameters: a heating with and without its valve's input floor)
+        key = (tuple(sorted((k, v) for k, v in p.items() if k not in box)), tuple(sorted(k for k in p if k in box)))
+        groups.setdefault(key, []).append(p)
     refined = [refine(w.word, chain, min(g, key=sse), base, sig, folds) for g in groups.values()]
+    # a part of the law that holds some rows at a setting of its own (a valve's input floor) must fit
+    # them better than the law without it: one that fits them worse only frees the PI elsewhere (a
+    # valve opening with a jump just above the lowest duty, a concealed dead zone, had those rows held
+    # at a floor so that the PI need not bend to them, and the rest of the range fitted better)
+    refined = [p for p in refined if _holds(w, p, chain, base, sig, folds)]
     # a setting whose refinement ran onto a bound of its box has not found the law's minimum (a coil
     # read as warm from the start trades its rise against its time constant up to the largest rise):
     # the settings refined to the inside are compared, if any
-    inside = [p for p in refined if _inside(p, box)] or refined
+    inside = [p for p in refined if _inside(p, box, w.settled_ends)] or refined
     full = _subsample(folds.train)
     params = inside[0] if len(inside) == 1 else min(inside, key=lambda p: sse(p, full))
     if not w.within_physics(params):
@@ -433,9 +440,25 @@ PHYSICS_TIE = 0.1
 AT_BOUND = 1.02
 
 
-def _inside(params: dict, box: dict) -> bool:
-    """Whether every parameter of ``params`` refined within ``box`` stays off its bounds."""
-    return all(lo * AT_BOUND < params[k] < hi / AT_BOUND for k, (lo, hi) in box.items() if k in params)
+def _holds(w: Word, params: dict, chain: dict, base: Base, sig: Signals, folds: Folds) -> bool:
+    """Whether the part of ``params`` that holds some rows (:meth:`Word.held`) fits those of the
+    training rows better than the law without it, the PI refitted under each (``True``: no such part)."""
+    part = w.held(sig, params)
+    if part is None:
+        return True
+    rest, rows = part
+    full = _subsample(folds.train)
+    held = rows[full]
+    e = [train_residual(design(w.word, base, sig, {**chain, w.word: p}, folds, full)[0], sig.flow_lpm, full)[held]
+         for p in (params, rest)]
+    return bool(held.any()) and float(e[0] @ e[0]) < float(e[1] @ e[1])
+
+
+def _inside(params: dict, box: dict, settled: tuple = ()) -> bool:
+    """Whether every parameter of ``params`` refined within ``box`` stays off its bounds (but those
+    whose ends are settings of the law, ``settled``)."""
+    return all(lo * AT_BOUND < params[k] < hi / AT_BOUND for k, (lo, hi) in box.items()
+               if k in params and k not in settled)
 
 
 def _at_upper_bound(w: Word, params: dict, sig: Signals, base: Base) -> str | None:
@@ -444,7 +467,7 @@ def _at_upper_bound(w: Word, params: dict, sig: Signals, base: Base) -> str | No
     shows none of its curvature, a slow drift read as heat; a coil twice its cold resistance).
     The box is the one :func:`refine` searched, the linearized law's time constant included: a
     heating column whose time constant runs to four times the recording is a ramp in time."""
-    box = {k: v for k, v in w.bounds(sig, base).items() if k in params}
+    box = {k: v for k, v in w.bounds(sig, base).items() if k in params and k not in w.settled_ends}
     over = [f"{k} = {params[k]:.4g} at the upper bound {hi:g} of its refinement" for k, (lo, hi) in box.items()
             if k in params and params[k] >= hi / AT_BOUND]
     return "; ".join(f"{o}: not resolved" for o in over) or None

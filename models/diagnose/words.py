@@ -93,6 +93,10 @@ class Word:
         Screened parameter -> the step (in its unit) to which the refinement places it between its
         grid neighbours, on a linear scale (else 2 % of a positive parameter, on a log scale: a
         time constant).
+    settled_ends : tuple
+        Exact-law parameters whose box ends are settings of the law itself (a valve's input floor
+        at the lowest commanded duty, or below every effective duty), not a refinement that ran off
+        its range (:func:`models.diagnose.detectors._inside`).
     """
 
     word: str
@@ -107,6 +111,7 @@ class Word:
     input_side: str | None = None
     ratio_of: dict = field(default_factory=dict)
     resolution: dict = field(default_factory=dict)
+    settled_ends: tuple = ()
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
@@ -152,6 +157,12 @@ class Word:
         """``params`` moved to where the recording itself places them among settings the fit cannot
         tell apart (``chain``: the named words it joins); ``params`` by default."""
         return params
+
+    def held(self, sig: Signals, params: dict) -> tuple | None:
+        """``(rest, rows)``: the rows a part of the law holds at a setting of its own (a valve's input
+        floor) and ``params`` without that part, which must fit those rows better than ``rest``
+        (:func:`models.diagnose.detectors._holds`); ``None`` (default): no such part."""
+        return None
 
     # -- the law in the chain --
     def effective_duty(self, sig: Signals, params: dict) -> np.ndarray | None:
@@ -419,13 +430,25 @@ class CoilHeating(Word):
         # or a cold start: the screen's choice is unreliable when its column saturates)
         g = self.grid(sig, base)
         rises = (4.0, 10.0, 20.0, 35.0, 55.0, 100.0, 180.0)
-        return [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
-                for r in rises for t in g["tau_s"] for s in g["start"]]
+        starts = [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
+                  for r in rises for t in g["tau_s"] for s in g["start"]]
+        x = sig.duty_pct
+        if not base.refit or np.mean(base.shut(sig)[x <= np.percentile(x, 1.0)]) >= 0.5:
+            # a valve shut at the lowest commanded duty stays shut below it, whichever way its
+            # input runs there: the flow shows no floor (plant_sim's valve, seated at 34 % and its
+            # input range ending at 38 %, had one placed at 34 % that traded a warm start's rise)
+            return starts
+        # and each with the valve's input held at the lowest commanded duty, from where the
+        # refinement places the floor (:meth:`effective_duty`)
+        return starts + [{**p, "floor_pct": float(np.min(x))} for p in starts]
 
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
             return {"copper_law_ratio": (0.2, 5.0)}
-        return {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig))}
+        lowest = float(np.min(sig.duty_pct))
+        # the floor from the lowest commanded duty down to below every effective duty the law reaches
+        return {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig)),
+                "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), lowest)}
 
     def rise_k(self, sig: Signals, params: dict) -> np.ndarray:
         """Coil temperature rise since the first sample (K) times the copper-law ratio: measured or modelled."""
@@ -441,9 +464,25 @@ class CoilHeating(Word):
         return "rise55_k" in params or "copper_law_ratio" in params
 
     def effective_duty(self, sig, params):
+        """The duty the coil's current gives at its reference temperature (%), held at the valve's
+        input floor ``floor_pct`` when the law has one.
+
+        A warm coil's effective duty runs below the lowest duty the recording commands, where a PI
+        fitted on the recording has no row and runs on down its loading curve; a valve whose
+        plunger is seated there holds its magnetic input, and its memory, at the bottom of its
+        range (a valve identified over 38-72 % and driven over 40-70 %: a coil 25 K warm was read as
+        31 K, beside a 39 ms lag as 40 K). A model file holds its input to its identified range
+        itself (:meth:`models.diagnose.design.Base.unit_input`)."""
         if not self.is_exact(params):
             return None
-        return fx.effective_duty(sig.duty_pct, self.rise_k(sig, params))
+        x = fx.effective_duty(sig.duty_pct, self.rise_k(sig, params))
+        return np.maximum(x, params["floor_pct"]) if "floor_pct" in params else x
+
+    def held(self, sig, params):
+        if "floor_pct" not in params:
+            return None
+        rest = {k: v for k, v in params.items() if k != "floor_pct"}
+        return rest, self.effective_duty(sig, rest) < params["floor_pct"]
 
     def valve_columns(self, ctx, params):
         if self.is_exact(params):
@@ -851,7 +890,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
          "ambient_c": "deg C"},
         {"rise55_k": (0.05, LAW_RISE55_K), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
         joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty",
-        ratio_of={"rise55_k": "tau_s"}),
+        ratio_of={"rise55_k": "tau_s"}, settled_ends=("floor_pct",)),
     SupplyPressure(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
         "to first order, the PI refitted with it",
