@@ -353,12 +353,15 @@ def test_gross_dead_zone_behind_a_lag_on_breaths():
 
 
 @pytest.mark.slow
-def test_gross_dead_zone_behind_a_delay_on_breaths():
+@pytest.mark.parametrize("delay_s", [0.04, 0.0413])
+def test_gross_dead_zone_behind_a_delay_on_breaths(delay_s):
     # a 45 % cracking duty behind a 40 ms delay: the flow arrives when the breath's duty is some 8 %
-    # past the cracking duty, and the jump falls between two samples of the rise
-    named = _named({"dead_zone": 45.0, "transport_delay": 0.04}, "breaths", seed=5)
+    # past the cracking duty, and the jump falls between two samples of the rise. Whether the delay
+    # is a whole number of samples or not (the one refined to 0.04001 s missed the dead zone: its
+    # leads, ranked on a fifth of the rows, tied, the few rows between them unseen)
+    named = _named({"dead_zone": 45.0, "transport_delay": delay_s}, "breaths", seed=5)
     assert named["dead_zone"].params["cracking_pct"] == pytest.approx(45.0, abs=1.0)
-    assert named["transport_delay"].params["delay_s"] == pytest.approx(0.04, rel=0.2)
+    assert named["transport_delay"].params["delay_s"] == pytest.approx(delay_s, rel=0.2)
 
 
 @pytest.mark.slow  # ~15 s

@@ -362,10 +362,16 @@ def _unbent_best(word: str, points: list, bent_sse: np.ndarray, chain: dict, bas
     A PI fitted through a dead zone's shut rows is bent (its gain and offset stretched to reach
     zero flow), and the cracking duty it prefers is off by a held level: the one that fits best
     once the PI is unbent is the law's.
+
+    Ranked on as many rows as a refinement fits on: what tells two close cracking duties apart is the
+    few rows between them (a breath's rise crosses 44.7-45.1 % in one sample), which a sparser
+    subsample misses; the leads then tie, and the first of them was taken (behind a 40 ms delay a
+    PI unbent under a cracking duty below the valve's took up its jump with a loading curve diving
+    under zero flow just below it, and the training error is flat down there).
     """
     order = np.argsort(bent_sse)[:STATIC_LEADS]
     near = sorted({int(j) for i in order for j in (i - 1, i, i + 1) if 0 <= j < len(points)})
-    rows = _subsample(folds.train, START_ROWS)
+    rows = _subsample(folds.train)
     return min(near, key=lambda i: unbent_sse(word, chain, points[i], base, sig, rows))
 
 
