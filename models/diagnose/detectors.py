@@ -710,6 +710,11 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
         for c, outcome, why in refused:
             sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, outcome, why))
         masking = _masking(refused, accepted)
+        if masking is not None and _independent(accepted, masking[0], sel.reference, sig, folds, margins):
+            # the rival explains the same residual only if the one found loses its place beside it: a
+            # clip measured at its plateau still earns its place beside a dead zone whose gain came
+            # from the PI refitted on the open rows, and is named
+            masking = None
         if masking is not None:
             # a stronger law explains the residual but the recording lacks the rows that would show
             # it: the weaker one cannot be asserted (it may be taking up the other's residual), and
@@ -930,6 +935,15 @@ def _masking(refused: list, accepted) -> tuple | None:
     over = [(c, why) for c, outcome, why in refused
             if outcome == UNSUPPORTED and VOCABULARY[c.word].static and c.gain > accepted[0].gain]
     return max(over, key=lambda cw: cw[0].gain) if over else None
+
+
+def _independent(accepted: tuple, rival: Candidate, root: Base, sig: Signals, folds: Folds,
+                 margins: Margins) -> bool:
+    """Whether the ``accepted`` law, ``(candidate, chain, physical params)``, still earns its place
+    (:func:`earns`) beside the stronger ``rival`` the recording cannot show: then the two do not
+    explain the same residual, and the rival masks nothing."""
+    c, full, _ = accepted
+    return earns(c.word, {**full, rival.word: rival.params}, root, sig, folds, margins)[1] is None
 
 
 def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur: Base, sig: Signals, folds: Folds,
