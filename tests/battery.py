@@ -639,8 +639,13 @@ def _materialize(case: Case, folder: str, root: str) -> list[str]:
     return out
 
 
-def _child(argv: list[str], err_path: str, root: str) -> None:
-    """In the forked child: run the CLI, exit with its code (1 and a traceback on an uncaught exception)."""
+def _child(argv: list[str], err_path: str, root: str, timeout_s: float) -> None:
+    """In the forked child: run the CLI, exit with its code (1 and a traceback on an uncaught exception).
+
+    Just before ``timeout_s`` every thread's stack goes to the case's stderr: a hang says where it hung.
+    """
+    import faulthandler
+
     os.chdir(root)
     fd = os.open(err_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
     null = os.open(os.devnull, os.O_WRONLY)
@@ -648,6 +653,7 @@ def _child(argv: list[str], err_path: str, root: str) -> None:
     os.dup2(fd, 2)
     sys.stdout = open(1, "w", closefd=False)
     sys.stderr = open(2, "w", closefd=False)
+    faulthandler.dump_traceback_later(max(timeout_s - 1.0, 0.5), file=sys.stderr)
     code = 1
     try:
         from controller.cli import main
@@ -684,7 +690,7 @@ def classify(case: Case, rc: int | None, stderr: str) -> str:
     return "clean" if len(stderr.strip().splitlines()) == 1 else "multiline"
 
 
-def _start(case: Case, root: str, workdir: str) -> tuple[int, str, float]:
+def _start(case: Case, root: str, workdir: str, timeout_s: float) -> tuple[int, str, float]:
     """Fork a child running one case; (pid, its folder, start time)."""
     folder = tempfile.mkdtemp(dir=workdir)
     argv = _materialize(case, folder, root)
@@ -693,7 +699,7 @@ def _start(case: Case, root: str, workdir: str) -> tuple[int, str, float]:
     if pid == 0:
         try:
             os.setpgid(0, 0)
-            _child(argv, os.path.join(folder, ".stderr"), root)
+            _child(argv, os.path.join(folder, ".stderr"), root, timeout_s)
         finally:
             os._exit(1)
     return pid, folder, start
@@ -726,7 +732,7 @@ def run_battery(selected: list[Case], root: str, timeout_s: float, jobs: int, pr
         while pending or running:
             while pending and len(running) < jobs:
                 case = pending.pop(0)
-                pid, folder, start = _start(case, root, workdir)
+                pid, folder, start = _start(case, root, workdir, timeout_s)
                 running[pid] = (case, folder, start)
             time.sleep(0.01)
             for pid, (case, folder, start) in list(running.items()):
