@@ -308,12 +308,12 @@ def test_a_dead_zone_must_explain_more_than_the_valve_closed_at_its_rest():
     # in the valve's widest operators left the PI, pulled under zero flow at the rest, 3 L/min short at
     # their plateaus, and a dead zone at 34.8 % took that misfit (held-out error -59 %). The same law at
     # the rest, which shuts no row the valve does not rest shut on, explains all of it
-    from models.diagnose.trace import NOT_PHYSICAL
+    from models.diagnose.trace import UNSUPPORTED
 
     G = pytest.importorskip("diagnose_gross")
     d = diagnose_response(G.record(G.Probe("plant", (), "breaths", 2013, 0.3)))
     assert d.findings == []
-    refused = [t for t in d.trace if t.word == "dead_zone" and t.outcome == NOT_PHYSICAL]
+    refused = [t for t in d.trace if t.word == "dead_zone" and t.outcome == UNSUPPORTED]
     assert refused and "closed at its rest" in refused[0].why
 
 

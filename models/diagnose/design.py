@@ -815,10 +815,11 @@ def fixed_base(model: FittedModel, sig: Signals) -> Base:
 
 
 def flow_gain(sig: Signals, chain: dict) -> np.ndarray | None:
-    """Pointwise factor on the whole flow at the valve (a dead zone's open mask); ``None``: 1."""
-    g = None
+    """Pointwise factor on the whole flow at the valve (a dead zone's open mask, on the duty the
+    magnetics see under ``chain``); ``None``: 1."""
+    g, x = None, inputs(sig, chain)[0]
     for w, p in chain.items():
-        f = VOCABULARY[w].flow_gain(sig, p)
+        f = VOCABULARY[w].flow_gain(sig, p, x)
         if f is not None:
             g = f if g is None else g * f
     return g

@@ -12,7 +12,7 @@ iterating over :data:`VOCABULARY`: adding a word is one new object here.
 The augmented model chains the words around the hysteresis core::
 
     duty -> coil heating (effective duty) -> hysteresis (asymmetric branch)
-         -> dead zone -> supply pressure gain -> transport delay, lag
+         -> dead zone (on the effective duty) -> supply pressure gain -> transport delay, lag
          -> creep -> saturation -> + sensor offset
 """
 from __future__ import annotations
@@ -158,6 +158,12 @@ class Word:
         tell apart (``chain``: the named words it joins); ``params`` by default."""
         return params
 
+    def carried(self, sig: Signals, params: dict, chain: dict) -> dict:
+        """``params`` moved along with the duty the magnetics see under ``chain`` (its input-side law
+        refined or named beside them): where the recording places them on that duty; ``params`` by
+        default (a law that does not read it)."""
+        return params
+
     def held(self, sig: Signals, params: dict) -> tuple | None:
         """``(rest, rows)``: the rows a part of the law holds at a setting of its own (a valve's input
         floor) and ``params`` without that part, which must fit those rows better than ``rest``
@@ -178,8 +184,9 @@ class Word:
         """Linear columns at the valve, before the dead zone and the dynamics."""
         return []
 
-    def flow_gain(self, sig: Signals, params: dict) -> np.ndarray | None:
-        """Pointwise factor on the whole flow at the valve, or ``None``."""
+    def flow_gain(self, sig: Signals, params: dict, duty_pct: np.ndarray) -> np.ndarray | None:
+        """Pointwise factor on the whole flow at the valve, or ``None`` (``duty_pct``: the duty the
+        magnetics see, :func:`magnetic_duty`)."""
         return None
 
     def dynamics(self, v: np.ndarray, rate_hz: float, params: dict) -> np.ndarray:
@@ -316,6 +323,14 @@ def held_levels(duty_pct: np.ndarray, hi_pct: float) -> np.ndarray:
     runs = np.diff(np.concatenate([starts, [len(duty_pct)]]))
     levels = duty_pct[starts[runs >= HOLD_ROWS]]
     return np.unique(levels[levels <= hi_pct])
+
+
+def magnetic_duty(sig: Signals, chain: dict) -> np.ndarray:
+    """The duty the valve's magnetics see under ``chain`` (%): the effective duty of its input-side
+    word (a warm coil's, :meth:`Word.effective_duty`), else the commanded duty."""
+    from .design import inputs
+
+    return inputs(sig, chain)[0]
 
 
 @dataclass(frozen=True)
@@ -648,7 +663,7 @@ class DeadZone(Word):
         # within a sample or two
         q = self._at_valve(sig, chain)
         lo_hi = self.plausible["cracking_pct"]
-        x = sig.duty_pct
+        x = magnetic_duty(sig, chain)
         rows = x <= lo_hi[1]
         order = np.argsort(x[rows], kind="stable")
         xs = x[rows][order]
@@ -659,8 +674,20 @@ class DeadZone(Word):
         c = float(xs[i]) + 1e-6
         return [{"cracking_pct": c}] if lo_hi[0] <= c < lo_hi[1] and i + 1 < len(xs) else []
 
-    def flow_gain(self, sig, params):
-        return fx.open_mask(sig.duty_pct, params["cracking_pct"])
+    def flow_gain(self, sig, params, duty_pct):
+        # the plunger lifts off its seat once the magnetic force beats the spring's preload: the
+        # cracking duty is one of the coil's current, which a warm coil's resistance lowers at a
+        # given commanded duty (a 46.5 % cracking duty held on the commanded duty beside a 26 K
+        # heating left each breath's opening a few per cent late or early, read as a 97 K heating)
+        return fx.open_mask(duty_pct, params["cracking_pct"])
+
+    def carried(self, sig, params, chain):
+        # a warm coil lowers the current at every commanded duty, and a cracking duty is one of the
+        # current: the rows where the flow leaves zero place it on the duty the magnetics see under
+        # each setting of the heating (held where it was named, a 46.7 % cracking duty placed beside a
+        # 97 K heating kept the heating refined beside it at 43 K for 26 K)
+        placed = self.placed(sig, {w: p for w, p in chain.items() if w != self.word})
+        return placed[0] if placed else params
 
     def at_rest(self, sig, params, base):
         rest = float(np.min(sig.duty_pct))
@@ -669,7 +696,8 @@ class DeadZone(Word):
         return {"cracking_pct": rest + 1e-6}
 
     def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
-        below = int(np.sum(sig.duty_pct <= params["cracking_pct"]))
+        x = magnetic_duty(sig, chain or {})
+        below = int(np.sum(x <= params["cracking_pct"]))
         if below < MIN_END_ROWS:
             return f"only {below} rows below the cracking duty"
         # where the law says the valve is shut the measured flow must really stop (zero within the
@@ -678,7 +706,7 @@ class DeadZone(Word):
         # holds it off past the opening (a breath's duty has risen a few per cent above the cracking
         # duty before its flow arrives, and those rows are where a model without the law, its PI
         # smoothed through the jump, predicts flow)
-        opened = self.flow_gain(sig, params)
+        opened = self.flow_gain(sig, params, x)
         for w, p in (chain or {}).items():
             opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
         shut = opened < 0.02
@@ -722,14 +750,18 @@ class DeadZone(Word):
         # comes to zero gradually (its last rows of zero flow are no cracking duty)
         q = self._at_valve(sig, chain)
         zero = self._zero_lpm(sig, q)
+        x = magnetic_duty(sig, chain)
         c = params["cracking_pct"]
         for level in held_levels(sig.duty_pct, self.plausible["cracking_pct"][1]):
-            if level <= c:
+            # (the level as the magnetics see it: its highest, a warm coil's lowers it along the hold)
+            at = sig.duty_pct == level
+            top = float(np.max(x[at]))
+            if top <= c:
                 continue
-            rows = (sig.duty_pct > c) & (sig.duty_pct <= level)
-            if float(np.median(q[rows])) > zero or float(np.max(q[sig.duty_pct == level])) > zero + zero:
+            rows = (x > c) & (x <= top)
+            if float(np.median(q[rows])) > zero or float(np.max(q[at])) > zero + zero:
                 break
-            c = float(level)
+            c = top
         return {**params, "cracking_pct": c + 1e-6} if c != params["cracking_pct"] else params
 
     @staticmethod
@@ -773,7 +805,7 @@ class DeadZone(Word):
         """
         q = self._at_valve(sig, chain)
         zero = self._zero_lpm(sig, q)
-        x, c = sig.duty_pct, params["cracking_pct"]
+        x, c = magnetic_duty(sig, chain), params["cracking_pct"]
         below = (x > c - JUMP_BAND_PCT) & (x <= c)
         above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT)
         # (a parabola needs duties spread over the band, not two held levels)
@@ -795,9 +827,9 @@ class DeadZone(Word):
         long passed the band above the cracking duty), against that flow's own noise.
         """
         q = self._at_valve(sig, chain)
-        c = params["cracking_pct"]
-        band = (sig.duty_pct > c) & (sig.duty_pct <= c + JUMP_BAND_PCT)
-        shut = sig.duty_pct <= c
+        x, c = magnetic_duty(sig, chain), params["cracking_pct"]
+        band = (x > c) & (x <= c + JUMP_BAND_PCT)
+        shut = x <= c
         if band.sum() < MIN_END_ROWS or shut.sum() < MIN_END_ROWS:
             return False
         return float(np.median(q[band])) - float(np.median(q[shut])) > self._zero_lpm(sig, q)
@@ -905,7 +937,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         "transport_delay", "pure delay from command to measured flow",
         {"delay_s": "s"}, {"delay_s": (0.0, 1.0)}, unresolved=("delay_s", "high"), probe={"delay_s": 0.01}),
     DeadZone(
-        "dead_zone", "no flow while the duty is below the cracking duty",
+        "dead_zone", "no flow while the duty the magnetics see (a warm coil's effective duty) is below the "
+        "cracking duty",
         {"cracking_pct": "%"}, {"cracking_pct": (0.5, 65.0)}, static=True,
         resolution={"cracking_pct": CRACKING_STEP_PCT}),
     Saturation(
