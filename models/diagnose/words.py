@@ -832,7 +832,13 @@ class DeadZone(Word):
         shut = x <= c
         if band.sum() < MIN_END_ROWS or shut.sum() < MIN_END_ROWS:
             return False
-        return float(np.median(q[band])) - float(np.median(q[shut])) > self._zero_lpm(sig, q)
+        opened = float(np.median(q[band]))
+        above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT)
+        if len(np.unique(x[above])) >= 4 and np.ptp(x[above]) >= JUMP_BAND_PCT:
+            # duties spread over the band: the flow taken down to the cracking duty itself (a valve
+            # opening by itself from zero there rises through the band without a jump at its foot)
+            opened = float(np.polynomial.polynomial.polyfit(x[above] - c, q[above], 2)[0])
+        return opened - float(np.median(q[shut])) > self._zero_lpm(sig, q)
 
 
 @dataclass(frozen=True)
