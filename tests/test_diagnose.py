@@ -414,6 +414,23 @@ def test_a_valve_opening_by_itself_on_breaths_shows_no_jump():
         assert not [c for c in grid if dz._opens_with_jump(sig, {"cracking_pct": c}, {})], seed
 
 
+def test_a_valve_opening_by_itself_jumps_nowhere_and_a_cracking_duty_does():
+    # on breaths the flow a valve passes just above the duty where it leaves zero is small, and it rises
+    # through the band above: taken down to that duty it is zero (no jump), where below a cracking duty
+    # the valve passes nothing and opens at once to the flow it would pass there
+    from models.diagnose.signals import work_signals
+    from models.diagnose.words import VOCABULARY
+
+    dz = VOCABULARY["dead_zone"]
+    for seed in (3, 4):
+        for effects, jumps in (({}, False), ({"dead_zone": 44.0}, True)):
+            sig = work_signals(_plant_recording(effects, "breaths", 300.0, seed))
+            (where,) = dz.placed(sig, {})
+            assert dz._jumps(sig, where, {}) is jumps, (seed, effects, where)
+            if jumps:
+                assert where["cracking_pct"] == pytest.approx(44.0, abs=0.3)
+
+
 @pytest.mark.slow
 def test_dead_zone_a_fitted_pi_absorbs_is_not_identifiable():
     # a 45 % cracking duty behind a 40 ms lag on breaths resting at 42 %: the valve is shut at rest
