@@ -16,7 +16,7 @@ import tempfile
 
 import pytest
 
-from tests import adversary
+from tests import adversary, battery
 
 #: make test: case name -> what it shows.
 FAST = {
@@ -60,6 +60,10 @@ FAST = {
 
 @pytest.fixture(scope="module")
 def prepared():
+    # every verb's kernels compiled once in this process: each forked child inherits them. Left to the
+    # children, a cold numba cache (a checkout whose kernels `make test` has not compiled) had each
+    # `valvectl run` case compile the live loop's kernel itself, past its 30 s on a loaded machine
+    battery.preload(adversary.ROOT)
     folder = tempfile.mkdtemp(prefix="adversary-")
     try:
         yield adversary.prepare(folder)
