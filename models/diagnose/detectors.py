@@ -438,20 +438,33 @@ def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, fo
     # read as warm from the start trades its rise against its time constant up to the largest rise):
     # the settings refined to the inside are compared, if any
     inside = [p for p in refined if _inside(p, box, w.settled_ends)] or refined
-    full = _subsample(folds.train)
-    params = inside[0] if len(inside) == 1 else min(inside, key=lambda p: sse(p, full))
-    if not w.within_physics(params):
-        # a setting beyond what the word's physics reaches (a coil read as 130 K warm from the start)
-        # gives way to one within it that explains nearly as much (the rest is another word's)
-        none = train_sse(design(w.word, base, sig, chain, folds, full)[0], sig.flow_lpm, full)
-        best = sse(params, full)
-        near = [p for p in inside if w.within_physics(p) and sse(p, full) - best <= PHYSICS_TIE * (none - best)]
-        params = min(near, key=lambda p: sse(p, full)) if near else params
-    return params
+    return _tied_choice(w, chain, inside, base, sig, folds)
 
 
-#: A refined setting beyond the word's physics (:meth:`Word.within_physics`) gives way to one within it
-#: whose training error is higher by at most this fraction of the error the former explains.
+def _tied_choice(w: Word, chain: dict, settings: list, base: Base, sig: Signals, folds: Folds) -> dict:
+    """The setting of ``settings`` (``w``'s exact law joining ``chain``) of the lowest training error,
+    unless it ties with others: among those whose error is higher by at most :data:`PHYSICS_TIE` of
+    the error the best explains, the first within the word's physics (:meth:`Word.within_physics`),
+    then by the word's preference among settings a fit cannot tell apart (:meth:`Word.tie_rank`).
+
+    A setting beyond the word's physics (a coil read as 130 K warm from the start) takes up another
+    word's misfit; a coil warm from the start and a cold one trade exactly to first order on a PI
+    fitted on the recording (:meth:`.words.CoilHeating.tie_rank`), and which one wins was the
+    misfit's choice (a warm 59 K for a cold 30 K beside a clip)."""
+    if len(settings) == 1:
+        return settings[0]
+    rows = _subsample(folds.train)
+    err = [train_sse(design(w.word, base, sig, {**chain, w.word: p}, folds, rows)[0], sig.flow_lpm, rows)
+           for p in settings]
+    best = min(err)
+    none = train_sse(design(w.word, base, sig, chain, folds, rows)[0], sig.flow_lpm, rows)
+    near = [i for i, e in enumerate(err) if e - best <= PHYSICS_TIE * max(none - best, 0.0)]
+    return settings[min(near, key=lambda i: (not w.within_physics(settings[i]), w.tie_rank(settings[i]), err[i]))]
+
+
+#: A refined setting gives way to one within the word's physics (:meth:`Word.within_physics`), or one the
+#: word prefers among those a fit cannot tell apart (:meth:`Word.tie_rank`), whose training error is
+#: higher by at most this fraction of the error the former explains.
 PHYSICS_TIE = 0.1
 #: A refined parameter within this factor of a bound of its box is at the bound.
 AT_BOUND = 1.02
@@ -460,7 +473,7 @@ AT_BOUND = 1.02
 def _holds(w: Word, params: dict, chain: dict, base: Base, sig: Signals, folds: Folds) -> bool:
     """Whether the part of ``params`` that holds some rows (:meth:`Word.held`) fits those of the
     training rows better than the law without it, the PI refitted under each (``True``: no such part)."""
-    part = w.held(sig, params)
+    part = w.held(sig, params, base)
     if part is None:
         return True
     rest, rows = part
@@ -1031,24 +1044,22 @@ def _refined_beside(word: str, chain: dict, root: Base, sig: Signals, folds: Fol
     rows = _subsample(folds.train)
     old = train_sse(design(word, root, sig, chain, folds, rows)[0], sig.flow_lpm, rows)
     new = refine(word, others, params, root, sig, folds)
-    box = w.bounds(sig, root)
-    # (a law carried along with the heating's effective duty, a cracking duty, resolves the setting:
-    # each breath's opening is where the coil's current reaches it, a thermometer along the recording)
-    thermometer = any(type(VOCABULARY[k]).carried is not Word.carried for k in others)
-    starts = [p for p in w.restarts(sig, root)
-              if thermometer or all(p[k] == params.get(k) for k in p if k not in box)] if restart else []
+    starts = w.restarts(sig, root) if restart else []
     if starts:
         # a law named before the others took up part of their misfit in a basin of its valley that
         # a local refinement does not leave (a coil heating named before a creep: 88 K for 38 K):
-        # it is refined again from its whole range with them in place, the lower training error
-        # kept; the setting it was named at of what is not refined stays (a coil warm or cold from
-        # the start: a flip between the two is no better resolved by the others' presence), but
-        # beside a thermometer (a warm start read 40 K for 30 K beside a 45 % cracking duty)
+        # it is refined again from its whole range with them in place (a law named by its linearized
+        # column too: a heating on a foreign chirp read 11 K for 24 K), and so is the setting of what
+        # is not refined, a coil warm or cold from the start (named before a clip, the breaths'
+        # clipped tops read as a warm start; beside a cracking duty carried along with it, each
+        # breath's opening is a thermometer along the recording: warm 40 K for a cold 30 K); the
+        # lowest training error is kept unless another setting ties with it (:func:`_tied_choice`)
         again = _multistart(w, others, starts, root, sig, folds)
-        new = min((new, again), key=lambda p: train_sse(
-            design(word, root, sig, {**others, word: p}, folds, rows)[0], sig.flow_lpm, rows))
+        new = _tied_choice(w, others, [params, new, again], root, sig, folds)
+        if new is params:
+            return None
     d, b = design(word, root, sig, {**others, word: new}, folds, rows)
-    if train_sse(d, sig.flow_lpm, rows) >= old:
+    if not starts and train_sse(d, sig.flow_lpm, rows) >= old:
         return None
     d, b = design(word, root, sig, {**others, word: new}, folds)
     phys = w.physical(new, _coef(word, d, fit_final(d, sig.flow_lpm, folds.train)), sig, b)

@@ -164,10 +164,11 @@ class Word:
         default (a law that does not read it)."""
         return params
 
-    def held(self, sig: Signals, params: dict) -> tuple | None:
-        """``(rest, rows)``: the rows a part of the law holds at a setting of its own (a valve's input
-        floor) and ``params`` without that part, which must fit those rows better than ``rest``
-        (:func:`models.diagnose.detectors._holds`); ``None`` (default): no such part."""
+    def held(self, sig: Signals, params: dict, base) -> tuple | None:
+        """``(rest, rows)``: the rows a part of the law fitted to the recording holds at a setting of
+        its own (a valve's input floor) and ``params`` without that part, which must fit those rows
+        better than ``rest`` (:func:`models.diagnose.detectors._holds`); ``None`` (default): no such
+        part."""
         return None
 
     # -- the law in the chain --
@@ -256,6 +257,11 @@ class Word:
         named with :meth:`caveat`, when no setting within it explains nearly as much)."""
         return True
 
+    def tie_rank(self, params: dict) -> int:
+        """The word's preference (lowest first) among settings of its law that the fit cannot tell
+        apart (:func:`models.diagnose.detectors._tied_choice`); 0 by default: none."""
+        return 0
+
     def caveat(self, phys: dict) -> str | None:
         """What a user should know of a plausible finding's size (beyond what the word's physics
         alone can reach), or ``None``."""
@@ -287,6 +293,16 @@ MAX_RISE55_K = 60.0
 #: a resistance change of the coil (every law beyond halves the flow), and a rise refined onto this bound
 #: has not found the law's minimum (:func:`models.diagnose.detectors._exact`).
 LAW_RISE55_K = 250.0
+#: Duty band (%, 5th to 95th percentile) over which the highest flows must sit at one level (within the
+#: plateau's noise band) to show a full-open flow's signature: a valve's own loading curve rises some
+#: 5 L/min per % there, so a band this wide is a plateau of ten times the noise or more.
+PLATEAU_SPAN_PCT = 2.0
+#: ... held by at least this share of the rows (twice the top percent the level is taken from: a coil
+#: warming along breaths passes the same top flow at a few duties, on under 1 % of the rows).
+PLATEAU_SHARE = 0.02
+#: Share of the rows a coil as warm as copper can be takes below the lowest commanded duty that must be
+#: shut for the valve to count as seated there (:meth:`CoilHeating._seated`).
+SEATED_SHARE = 0.9
 #: Share of the rows, those the law's correction moves most, where an asymmetry must be seen ...
 LARGEST_SHARE = 0.1
 #: ... explaining at least this share of the residual's mean square beyond the noise there.
@@ -447,23 +463,47 @@ class CoilHeating(Word):
         rises = (4.0, 10.0, 20.0, 35.0, 55.0, 100.0, 180.0)
         starts = [{"rise55_k": r, "tau_s": float(t), "start": float(s)}
                   for r in rises for t in g["tau_s"] for s in g["start"]]
-        x = sig.duty_pct
-        if not base.refit or np.mean(base.shut(sig)[x <= np.percentile(x, 1.0)]) >= 0.5:
-            # a valve shut at the lowest commanded duty stays shut below it, whichever way its
-            # input runs there: the flow shows no floor (plant_sim's valve, seated at 34 % and its
-            # input range ending at 38 %, had one placed at 34 % that traded a warm start's rise)
+        if not base.refit:
             return starts
+        held = [{**p, "floor_pct": float(np.min(sig.duty_pct))} for p in starts]
+        if self._seated(sig, base):
+            # a valve shut at the lowest commanded duty has its input held there (:meth:`_seated`)
+            return held
         # and each with the valve's input held at the lowest commanded duty, from where the
         # refinement places the floor (:meth:`effective_duty`)
-        return starts + [{**p, "floor_pct": float(np.min(x))} for p in starts]
+        return starts + held
+
+    @staticmethod
+    def _seated(sig: Signals, base) -> bool:
+        """Whether a PI fitted on the recording has its valve shut at the lowest commanded duty: its
+        effective duty is then held there, a setting of the law, not refined.
+
+        A seated plunger's memory does not follow a current below the one that seats it (plant_sim's
+        valve holds its input at 38 %, seated at 34 %), and the recording shows no flow there to place
+        a floor by (one placed at 34 % traded a warm start's rise). Run on below the lowest duty, the
+        PI's input rests lower with every kelvin, each breath rising from another memory: beside a
+        clip that hides the breaths' tops, a coil 30 K warm fitted best as 40 K (breaths resting at
+        30 %, train error 1.16 x the noise at 30 K, 1.04 x with the input held at 30 %)."""
+        if not base.refit:
+            return False
+        x, shut = sig.duty_pct, base.shut(sig)
+        lowest = float(np.min(x))
+        # and shut wherever a coil as warm as copper can be (MAX_RISE55_K) takes the effective duty
+        # below it: a valve opening just above its lowest duty (the paper's sweep from 38 %) passes
+        # flow that goes on falling with the effective duty below it (held, a coil 32 K warm beside
+        # a clip was read as 23 K, train error 1.6 x that of the input run on)
+        below = fx.effective_duty(x, MAX_RISE55_K * (x / fx.HEATING_REF_DUTY_PCT) ** 2) < lowest
+        return bool(np.mean(shut[x <= np.percentile(x, 1.0)]) >= 0.5 and np.mean(shut[below]) >= SEATED_SHARE)
 
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
             return {"copper_law_ratio": (0.2, 5.0)}
+        box = {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig))}
+        if self._seated(sig, base):
+            return box
         lowest = float(np.min(sig.duty_pct))
         # the floor from the lowest commanded duty down to below every effective duty the law reaches
-        return {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig)),
-                "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), lowest)}
+        return {**box, "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), lowest)}
 
     def rise_k(self, sig: Signals, params: dict) -> np.ndarray:
         """Coil temperature rise since the first sample (K) times the copper-law ratio: measured or modelled."""
@@ -493,8 +533,8 @@ class CoilHeating(Word):
         x = fx.effective_duty(sig.duty_pct, self.rise_k(sig, params))
         return np.maximum(x, params["floor_pct"]) if "floor_pct" in params else x
 
-    def held(self, sig, params):
-        if "floor_pct" not in params:
+    def held(self, sig, params, base):
+        if "floor_pct" not in params or self._seated(sig, base):
             return None
         rest = {k: v for k, v in params.items() if k != "floor_pct"}
         return rest, self.effective_duty(sig, rest) < params["floor_pct"]
@@ -516,6 +556,15 @@ class CoilHeating(Word):
 
     def within_physics(self, params):
         return params.get("rise55_k", 0.0) <= MAX_RISE55_K
+
+    def tie_rank(self, params):
+        # a coil warm from the start (at the steady rise of the first duty, rise55 (x0/55)^2) adds
+        # a constant rise, a duty scale that a PI fitted on the recording takes up: along the
+        # recording it warms by rise55 (m - m0) (1 - exp(-t/tau)), m and m0 the mean and the first
+        # (duty/55)^2, where a cold one warms by rise55 m (1 - ...), the same curve to first order
+        # (breaths resting at 30 %: a warm 59 K for a cold 30 K). The cold start is the simpler
+        # reading (no warming before the recording that the recording cannot show)
+        return int(params.get("start", 0.0) > 0.0)
 
     def beside_memory(self, sig):
         # a coil's temperature follows the power it dissipates through its thermal time constant, at
@@ -851,6 +900,26 @@ class Saturation(Word):
 
     def clip_lpm(self, params):
         return params["full_open_lpm"]
+
+    def absorbed(self, sig, chain):
+        # a valve at its full-open stop passes the same flow whatever the duty above the one that
+        # reaches it: the highest flows pile up at one level over a band of duties. Breaths that rise
+        # to it and step back down never sample the loop's descending branch there, so a PI fitted on
+        # the recording flattens into the plateau as well as the clip does (beside a coil heating sized
+        # right, a clip at 150 L/min gained nothing held out, its PI refitted either way)
+        from .design import PLATEAU_NOISE
+
+        flow, x = sig.flow_lpm, sig.duty_pct
+        top = float(np.median(flow[flow >= np.percentile(flow, 99.0)]))
+        rows = flow >= top - PLATEAU_NOISE * signals.noise_lpm(flow)
+        lo, hi = np.percentile(x[rows], [5.0, 95.0]) if rows.mean() >= PLATEAU_SHARE else (0.0, 0.0)
+        if hi - lo < PLATEAU_SPAN_PCT:
+            return None
+        level = float(np.median(flow[rows]))
+        return (f"the flow flattens at {level:.4g} L/min over {lo:.3g}-{hi:.3g} % duty ({int(rows.sum())} rows: a "
+                f"full-open flow's signature), but a PI fitted on this recording flattens as well and, with "
+                f"{', '.join(chain) or 'no effect'}, explains the recording to within the noise; give the "
+                f"simulation's model file (--model) to test it")
 
     def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
         top = before_lpm > params["full_open_lpm"]
