@@ -317,6 +317,39 @@ def test_a_seated_valves_memory_sizes_a_heating_beside_a_clip():
     assert named["coil_heating"].params["start"] == 0.0
 
 
+def test_a_warm_start_that_ties_with_a_cold_one_gives_way_to_it():
+    # a coil warm from the start and a cold one trade to first order on a PI fitted on the recording
+    # (the warm one's first rise is a duty scale the PI takes up): among settings whose training error
+    # is within PHYSICS_TIE of what the best explains, the cold one is kept even where the warm one
+    # fits a little better; a cold one that fits clearly worse is not
+    import diagnose_gross as G
+    from models.diagnose.design import fit_baseline, memory_start_s
+    from models.diagnose.detectors import _subsample, _tied_choice, design, train_sse
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import running_rows, work_signals
+    from models.diagnose.words import VOCABULARY
+
+    p = G.Probe("plant", (("saturation", 138.0), ("coil_heating", 30.0)), "breaths", 3701, 0.5)
+    rec, rest = running_rows(G.record(p))
+    sig = work_signals(rec, rest)
+    folds = make_folds(sig.t_s, start_s=memory_start_s(sig))
+    root = fit_baseline(sig, folds)
+    chain, rows = {"saturation": {"full_open_lpm": 138.0}}, _subsample(folds.train)
+
+    def setting(rise_k, start):
+        return {"rise55_k": rise_k, "tau_s": 180.0, "start": start, "floor_pct": float(sig.duty_pct.min())}
+
+    def error(params):
+        d = design("coil_heating", root, sig, {**chain, "coil_heating": params}, folds, rows)[0]
+        return train_sse(d, sig.flow_lpm, rows)
+
+    heating = VOCABULARY["coil_heating"]
+    warm, near, far = setting(70.0, 1.0), setting(24.0, 0.0), setting(18.0, 0.0)
+    assert error(warm) < error(near) < error(far)
+    assert _tied_choice(heating, chain, [warm, near], root, sig, folds) is near
+    assert _tied_choice(heating, chain, [warm, far], root, sig, folds) is warm
+
+
 def test_a_clips_plateau_is_its_signature():
     # breaths whose tops a clip at 128 L/min holds over ten per cent of duty show a full-open flow's
     # signature; a valve's own loading curve, warm or cold, shows none
