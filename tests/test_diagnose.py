@@ -19,7 +19,7 @@ F = pytest.importorskip("diagnose_foreign")
 from controller.cli import main  # noqa: E402
 from models.diagnose import diagnose_response  # noqa: E402
 from models.model import load_model  # noqa: E402
-from models.recording import write_recording  # noqa: E402
+from models.recording import Recording, write_recording  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -180,7 +180,6 @@ def test_readme_example(tmp_path):
 
 
 def _plant_recording(effects: dict, protocol: str, duration_s: float, seed: int = 3):
-    from models.recording import Recording
     from plant_sim.plant import Plant, load_plant
     from plant_sim.protocols import protocol as make
 
@@ -543,8 +542,6 @@ def test_dead_zone_a_fitted_pi_absorbs_is_not_identifiable():
     duty = F.excitation("breaths", 5)
     rng = np.random.default_rng(5)
 
-    from models.recording import Recording
-
     def rec(effects):
         q = F.flow_of(effects, duty, 5)[0] + rng.normal(0.0, 0.5, len(duty))
         return Recording("<breaths>", {"t_s": np.arange(len(duty)) / F.RATE_HZ, "duty_pct": duty, "flow_lpm": q})
@@ -591,6 +588,22 @@ def test_creep_stops_at_a_shut_valve():
     assert set(named) == {"creep", "sensor_offset"}
     assert named["creep"].params["amplitude"] == pytest.approx(0.15, rel=0.25)
     assert named["sensor_offset"].params["offset_lpm"] == pytest.approx(1.5, abs=0.2)
+
+
+@pytest.mark.parametrize("offset_lpm", [-2.0, 0.0])
+def test_sensor_offset_is_read_where_the_valve_is_shut(offset_lpm):
+    # a valve passing 4 % less flow than its model file, resting shut between breaths: over the
+    # open valve a constant takes up the model's misfit too (-1.5 L/min), so the offset is what the
+    # sensor reads where the model has the valve shut, and a constant the shut valve does not read
+    # is no offset at all
+    rec = _plant_recording({}, "breaths", 300.0, seed=12)
+    cols = dict(rec.columns)
+    cols["flow_lpm"] = 0.96 * cols["flow_lpm"] + offset_lpm
+    named = {f.effect: f for f in diagnose_response(Recording("<weak valve>", cols), load_model(S.MODEL_JSON)).findings}
+    if offset_lpm:
+        assert named["sensor_offset"].params["offset_lpm"] == pytest.approx(offset_lpm, abs=0.2)
+    else:
+        assert "sensor_offset" not in named
 
 
 @pytest.mark.slow

@@ -889,7 +889,8 @@ def chain_params(chain: dict, d: Design, theta: np.ndarray, sig: Signals, base: 
     """Word -> its parameters in physical units from the fit ``theta`` of the whole ``chain``'s
     design ``d`` on ``base`` (a linear column's coefficient, a creep's amplitude or a supply's
     exponent, is the whole chain's, not that of the round its word was named in)."""
-    return {w: VOCABULARY[w].physical(p, _coef(w, d, theta), sig, base) for w, p in chain.items()}
+    fitted = d.predict(theta)
+    return {w: VOCABULARY[w].physical(p, _coef(w, d, theta), sig, base, fitted) for w, p in chain.items()}
 
 
 def _gross_exact(cands: dict, words: list, sel: Selection, before: CVResult, cur: Base, sig: Signals, folds: Folds,
@@ -1062,7 +1063,8 @@ def _refined_beside(word: str, chain: dict, root: Base, sig: Signals, folds: Fol
     if not starts and train_sse(d, sig.flow_lpm, rows) >= old:
         return None
     d, b = design(word, root, sig, {**others, word: new}, folds)
-    phys = w.physical(new, _coef(word, d, fit_final(d, sig.flow_lpm, folds.train)), sig, b)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    phys = w.physical(new, _coef(word, d, theta), sig, b, d.predict(theta))
     if (w.implausible(phys) or w.not_resolved(new, sig, b) or _at_upper_bound(w, new, sig, b)
             or _beyond_physics(w, new, others) or _within_phase(word, new, others, sig)):
         return None
@@ -1152,7 +1154,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
     full = carried(c.word, sig, {**chain, c.word: params})
     d, b = design(c.word, b, sig, full, folds)
     theta = fit_final(d, sig.flow_lpm, folds.train)
-    phys = w.physical(params, _coef(c.word, d, theta), sig, b)
+    phys = w.physical(params, _coef(c.word, d, theta), sig, b, d.predict(theta))
     why = (w.implausible(phys) or w.not_resolved(params, sig, b) or _at_upper_bound(w, params, sig, b)
            or _beyond_physics(w, params, chain) or _within_phase(c.word, params, chain, sig))
     if why:

@@ -219,8 +219,10 @@ class Word:
         return None
 
     # -- report and checks --
-    def physical(self, params: dict, coef: float | None, sig: Signals, base) -> dict:
-        """The parameters in the units of :attr:`units` (``coef``: the column's fitted coefficient)."""
+    def physical(self, params: dict, coef: float | None, sig: Signals, base,
+                 fitted_lpm: np.ndarray | None = None) -> dict:
+        """The parameters in the units of :attr:`units` (``coef``: the column's fitted coefficient;
+        ``fitted_lpm``: the fitted prediction of the chain the word is in, at the sensor)."""
         return {k: float(v) for k, v in params.items()}
 
     def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float,
@@ -312,6 +314,8 @@ MIN_EXPLAINED_SHARE = 0.6
 START_BOUNDS = (1e-3, 0.5)
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
+#: Fewest rows of a shut valve (and at least 1 % of the recording) that read a sensor's zero offset.
+MIN_ZERO_ROWS = 20
 #: Share of the rows a saturation clips beyond which rows measured above its full-open flow (by more
 #: than the noise band) refute it (sensor spikes aside, a clipped valve passes no more).
 OVER_CLIP_SHARE = 0.01
@@ -419,7 +423,7 @@ class AsymmetricHysteresis(Word):
                     f"{100 * MIN_EXPLAINED_SHARE:.0f} %): the residual there is another law's")
         return None
 
-    def physical(self, params, coef, sig, base):
+    def physical(self, params, coef, sig, base, fitted_lpm=None):
         from .design import major_loop_half_width
 
         # relative to the half-width of the PI's own major loop (its fitted weights: the loop the
@@ -545,7 +549,7 @@ class CoilHeating(Word):
         # to first order in the resistance change: q(x (1 - a T)) ~ q(x) - a T x dq/dx, per kelvin of rise55
         return [-fx.ALPHA_CU_PER_K * self.rise_k(ctx.sig, params) * ctx.slope_lpm]
 
-    def physical(self, params, coef, sig, base):
+    def physical(self, params, coef, sig, base, fitted_lpm=None):
         p = {k: float(v) for k, v in params.items()}
         if sig.coil_temp_c is not None:
             p["coil_temp_span_k"] = float(np.ptp(sig.coil_temp_c))
@@ -629,7 +633,7 @@ class SupplyPressure(Word):
         gain = fx.pressure_gain(sig.supply_bar, ref_bar, 1.0)
         return [np.clip(ctx.flow_lpm, 0.0, None) * np.log(gain)]
 
-    def physical(self, params, coef, sig, base):
+    def physical(self, params, coef, sig, base, fitted_lpm=None):
         lo, hi = np.percentile(sig.supply_bar, [1, 99])
         return {"exponent": float(coef), "wander_bar": float(hi - lo) / 2.0}
 
@@ -957,7 +961,7 @@ class Creep(Word):
         q = np.clip(ctx.flow_lpm, 0.0, None)
         return [fx.creep(q, branch(ctx.sig.duty_pct), ctx.sig.rate_hz, params["tau_s"])]
 
-    def physical(self, params, coef, sig, base):
+    def physical(self, params, coef, sig, base, fitted_lpm=None):
         return {"tau_s": float(params["tau_s"]), "amplitude": float(coef)}
 
 
@@ -974,8 +978,51 @@ class SensorOffset(Word):
     def sensor_columns(self, ctx, params):
         return [np.ones(len(ctx.sig))]
 
-    def physical(self, params, coef, sig, base):
-        return {"offset_lpm": float(coef)}
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+        # a zero offset is what the sensor reads at zero flow: where the model with the other words
+        # has the valve shut (seated at rest, or below a cracking duty) the fitted constant must be
+        # of the flow read there, within a factor of two (over the open valve it also takes up the
+        # model's mean misfit there, a few per cent of the flow). One the shut valve contradicts
+        # takes up a misfit of the open valve (a 35 K heating's, refused beside a supply wander: a
+        # constant of -9.2 L/min where the shut valve read +1.7)
+        if after_lpm is None:
+            return None
+        read = self._at_zero_flow(sig, before_lpm, after_lpm)
+        if read is None:
+            return None
+        read_lpm, fit_lpm, sd_lpm = read
+        if not (read_lpm * fit_lpm > 0 and 0.5 * abs(read_lpm) - 3.0 * sd_lpm <= abs(fit_lpm) <= 2.0 * abs(read_lpm) + 3.0 * sd_lpm):
+            return (f"the sensor reads {read_lpm:.3g} L/min where the valve is shut, not of the fitted offset "
+                    f"{fit_lpm:.3g} L/min: the constant takes up a misfit of the open valve")
+        return None
+
+    def physical(self, params, coef, sig, base, fitted_lpm=None):
+        out = {"offset_lpm": float(coef)}
+        read = None if fitted_lpm is None else self._at_zero_flow(sig, fitted_lpm - coef, fitted_lpm)
+        if read is not None:
+            # sized where it is the only flow the sensor sees: over the open valve the constant also
+            # takes up the model's mean misfit (a foreign valve held against its model file: -1.70
+            # L/min for -2.19, read -2.17 below a cracking duty)
+            out = {"offset_lpm": read[0], "fit_offset_lpm": float(coef)}
+        return out
+
+    @staticmethod
+    def _at_zero_flow(sig: Signals, before_lpm: np.ndarray, after_lpm: np.ndarray) -> tuple | None:
+        """``(read, fitted, sd)`` (L/min): the median measured flow and the fitted offset over the rows
+        where the prediction without the offset ``before_lpm`` is zero flow, and the read's standard
+        error; ``None`` with fewer than :data:`MIN_ZERO_ROWS` such rows (and 1 % of the recording),
+        or when the flow measured there spreads beyond the noise."""
+        zero = np.abs(before_lpm) <= 1e-6
+        n = int(zero.sum())
+        if n < max(MIN_ZERO_ROWS, 0.01 * len(zero)):
+            return None
+        q = sig.flow_lpm[zero]
+        noise = signals.noise_lpm(sig.flow_lpm)
+        if np.subtract(*np.percentile(q, [75, 25])) > 2.0 * 1.349 * noise:
+            # spread beyond the noise's: the valve passes flow on many of the rows its model shuts
+            # (it opens lower than its model file), which say nothing of the zero
+            return None
+        return float(np.median(q)), float(np.median(after_lpm[zero])), float(1.25 * noise / np.sqrt(n))
 
 
 #: The effect words, in the order the augmented model chains them.
