@@ -140,6 +140,18 @@ def test_a_model_file_is_held_at_the_supply_it_was_identified_at():
     assert G.judge(probe, d) == []
 
 
+
+def test_a_heating_is_placed_beside_the_recorded_supply():
+    """A coil 30 K warm while the supply wanders by 0.2 bar (recorded), against the model file: refined
+    alone, the heating's time constant ran onto the upper bound of its refinement (the wander read as a
+    slow warming) and was refused, and a sensor offset of -11 L/min took up the heating; placed beside
+    the supply's law, it is resolved, and each of the three is named at its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("sensor_offset", -2.0), ("supply_pressure", 0.2), ("coil_heating", 30.0)), "mixed",
+                    2132, 0.5)
+    d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
+    assert G.judge(probe, d) == []
+
 # -- recordings made without plant_sim (bench/diagnose_foreign.py): the diagnosis is built for the physics --
 
 @pytest.mark.parametrize("exc", ["breaths", "chirp"])

@@ -411,6 +411,22 @@ def _exact(w: Word, chain: dict, screen: Candidate, before: CVResult, base: Base
     return c
 
 
+def beside_recorded(word: str, sig: Signals, chain: dict) -> dict:
+    """``chain`` with the laws driven by a state the recording measures (:meth:`Word.recorded`, the
+    supply's wander) that it lacks, to place ``word``'s nonlinear law beside: the word is still
+    tested without them.
+
+    A measured state's law has no parameter to place, only a coefficient, and a law placed without
+    it takes up what it can of its wander: a coil 30 K warm beside a supply wandering by 0.2 bar on a
+    mixed recording, held against its model file, had its time constant refined alone onto the upper
+    bound of its refinement (the slow wander read as a warming) and was refused, and a sensor offset
+    of -11 L/min took up the heating; placed beside the supply's column it is resolved (30 K, 180 s
+    once the three are named).
+    """
+    extra = {k: {} for k, v in VOCABULARY.items() if k != word and k not in chain and v.recorded(sig)}
+    return {**chain, **extra} if extra else chain
+
+
 def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, folds: Folds) -> dict:
     """The exact law of ``w`` joining ``chain``, refined from the best of ``starts`` of each setting of
     the parameters the refinement keeps fixed, the best so refined on the training rows."""
@@ -1149,7 +1165,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         chain, params = refine_time(c.word, chain if c.chain is None else c.chain, c.params, b, sig, folds)
     else:
         chain = chain if c.chain is None else c.chain
-        params = c.params if c.refined else refine(c.word, chain, c.params, b, sig, folds)
+        params = c.params if c.refined else refine(c.word, beside_recorded(c.word, sig, chain), c.params, b, sig, folds)
     params = w.settle(sig, params, chain)
     full = carried(c.word, sig, {**chain, c.word: params})
     d, b = design(c.word, b, sig, full, folds)

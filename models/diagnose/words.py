@@ -127,6 +127,12 @@ class Word:
         """``None``, or why the word cannot be tested on this recording with this baseline."""
         return None
 
+    def recorded(self, sig: Signals) -> bool:
+        """Whether a state the recording measures drives the law, linear in it (no nonlinear
+        parameter): it is then in place, as a nuisance, where another word's screened parameters are
+        refined on its acceptance (:func:`models.diagnose.detectors.beside_recorded`)."""
+        return False
+
     def exact_starts(self, params: dict, coef: float, sig: Signals, base, chain: dict) -> list:
         """Starts of the exact law's refinement from a screen (its grid point and column
         coefficient) joining the named words of ``chain``; empty when the linearized law is the law."""
@@ -622,6 +628,9 @@ class SupplyPressure(Word):
 
     def applicable(self, sig, base):
         return None if sig.supply_bar is not None else "no varying supply_bar column: the pressure cannot be seen"
+
+    def recorded(self, sig):
+        return sig.supply_bar is not None
 
     def valve_columns(self, ctx, params):
         # q ((p + p_atm) / (p_ref + p_atm))**n ~ q (1 + n ln(...)): the supply wanders by a few per cent
