@@ -386,6 +386,40 @@ def test_the_recording_places_a_cracking_duty_behind_a_lag(crack, tau, seed):
     assert shut.max() - CRACKING_STEP_PCT <= placed["cracking_pct"] <= opened.min() + CRACKING_STEP_PCT
 
 
+def _valve_shut_below_a_cracking_duty_behind_a_lag(crack: float, tau: float, noise: float = 0.3):
+    """plant_sim's valve shut below ``crack`` %, its flow through a ``tau`` s lag: 45 s of breaths resting
+    at 34 %, then 45 s of random holds over 38-72 % (Signals, folds)."""
+    from models.diagnose.signals import Signals
+    from plant_sim.plant import Plant, load_plant
+    from plant_sim.protocols import random_holds
+
+    rate = 100.0
+    t = np.arange(0.0, 45.0, 1.0 / rate)
+    phase = t % 3.0
+    breaths = np.where(phase < 1.0, 34.0 + 30.0 * np.clip(phase / 0.2, 0.0, 1.0), 34.0)
+    duty = np.concatenate([breaths, random_holds(rate, 45.0, 5, lo_pct=38.0, hi_pct=72.0)])
+    plant = Plant(load_plant("config/plant.toml", effects={"dead_zone": crack, "valve_dynamics": tau},
+                             noise_lpm=noise), rate, seed=5)
+    sig = Signals(np.arange(len(duty)) / rate, duty, np.asarray(plant.simulate(duty)["flow_lpm"], float),
+                  None, None, rate)
+    return sig, make_folds(sig.t_s)
+
+
+@pytest.mark.slow  # ~5 s
+def test_a_pi_refitted_under_a_dead_zone_behind_a_lag_fits_that_valve_to_its_noise():
+    # the refitted PI's constant passes the dead zone and the lag as its operators do (each opening
+    # rises from zero flow along the lag, not from the constant), so the chain of the two at their
+    # true settings predicts the held-out folds to within the sensor's noise, as the model file does
+    from models.diagnose.design import build, fit_baseline, unbend
+
+    noise, crack, tau = 0.3, 44.0, 0.05
+    sig, folds = _valve_shut_below_a_cracking_duty_behind_a_lag(crack, tau, noise)
+    chain = {"dead_zone": {"cracking_pct": crack + 1e-6}, "valve_dynamics": {"tau_s": tau, "phase": 1.0}}
+    base = unbend(fit_baseline(sig, folds), sig, chain, folds.train)
+    cv = cross_validate(build(base, sig, chain), sig.flow_lpm, folds)
+    assert np.sqrt(cv.test.sum() / cv.n.sum()) < 1.5 * noise
+
+
 def test_a_model_files_exact_asymmetry_is_the_simulated_valves_beyond_its_identified_range():
     # the simulated valve holds the model's input to its identified range (seated below it, fully
     # open above it) and lifts every descending threshold there: the exact law held against a model

@@ -867,7 +867,18 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
     Y = base.regressors_at_sensor(sig, chain)
     y_unit = ys.to_unit(sig.flow_lpm)
     shut, (top, reach) = base.shut(sig), base.plateau(sig, chain, valve=False)
-    w, offset, _ = censored_fit(Y, y_unit, H / ys.half_range, fr, shut, float(ys.to_unit(0.0)),
+    H = H / ys.half_range
+    rest = {w: p for w, p in chain.items() if not VOCABULARY[w].joint_with_pi}
+    if flow_gain(sig, rest) is not None and has_dynamics(rest):
+        # the PI's constant passes the dead zone and the time response as its operators do: a valve
+        # opening from shut rises from zero flow along the lag, not from the constant. Its share at the
+        # sensor less one (zero on the rows the valve has long been open), fitted jointly: its
+        # coefficient is the constant's distance from zero flow (a fixed offset column left the
+        # openings misfit by the whole flow there, and the PI bent to take that up held a 42.8 % cracking
+        # duty behind a 48 ms lag, at their true settings, at 7.5 x the noise; now 1.07 x, as the model
+        # file does)
+        H = np.column_stack([H, at_sensor(np.ones(len(sig)), sig, rest) - 1.0])
+    w, offset, _ = censored_fit(Y, y_unit, H, fr, shut, float(ys.to_unit(0.0)),
                                 base.slope_rows(sig, chain, fr & ~shut & ~top), top, ys.to_unit(reach))
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
