@@ -420,6 +420,27 @@ def test_a_pi_refitted_under_a_dead_zone_behind_a_lag_fits_that_valve_to_its_noi
     assert np.sqrt(cv.test.sum() / cv.n.sum()) < 1.5 * noise
 
 
+@pytest.mark.slow  # ~6 s
+def test_a_cracking_duty_is_placed_again_beside_the_lag_refined_with_it():
+    # a cracking duty chosen beside a lag sized before it was known is a held level off; refined once
+    # more with the lag in place (the backfit), it is placed again where the flow at the valve leaves
+    # zero, which fits the training rows better
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.detectors import _refined_beside, reference
+    from models.diagnose.words import CRACKING_STEP_PCT
+
+    crack, tau = 43.0, 0.06
+    sig, folds = _valve_shut_below_a_cracking_duty_behind_a_lag(crack, tau)
+    cur, _ = reference(fit_baseline(sig, folds), sig, folds)
+    chain = {"valve_dynamics": {"tau_s": tau, "phase": 1.0}, "dead_zone": {"cracking_pct": crack + 2.0}}
+    refined = _refined_beside("dead_zone", chain, cur, sig, folds, restart=True)
+    assert refined is not None
+    shut, opened = sig.duty_pct[sig.duty_pct <= crack], sig.duty_pct[sig.duty_pct > crack]
+    assert shut.max() - CRACKING_STEP_PCT <= refined[0]["cracking_pct"] <= opened.min() + CRACKING_STEP_PCT
+    # where it is, it stays
+    assert _refined_beside("dead_zone", {**chain, "dead_zone": refined[0]}, cur, sig, folds, restart=True) is None
+
+
 def test_a_model_files_exact_asymmetry_is_the_simulated_valves_beyond_its_identified_range():
     # the simulated valve holds the model's input to its identified range (seated below it, fully
     # open above it) and lifts every descending threshold there: the exact law held against a model
