@@ -576,6 +576,26 @@ def test_gross_heating_with_asymmetry():
 
 
 @pytest.mark.slow
+def test_a_heating_beside_an_asymmetry_is_refined_jointly_with_it():
+    # a coil 32 K warm with the descending thresholds widened x8, on a mixed recording: refined one after
+    # the other, the asymmetry was read as a widening in proportion to each threshold on a PI whose own
+    # loop the refit shrank into it (x65, beyond any plausible asymmetry); refined jointly from the lift
+    # of every threshold too, the chain's training error is lower and the asymmetry is of a plausible size
+    G = pytest.importorskip("diagnose_gross")
+    from models.diagnose.words import VOCABULARY
+
+    p = G.Probe("plant", (("coil_heating", 32.0), ("asymmetric_hysteresis", 8.0)), "mixed", 5007, 0.7)
+    d = diagnose_response(G.record(p))
+    named = {f.effect: f for f in d.findings if f.alternative_to is None}
+    assert set(named) == {"coil_heating", "asymmetric_hysteresis"}
+    asym = named["asymmetric_hysteresis"].params
+    assert VOCABULARY["asymmetric_hysteresis"].implausible(asym) is None
+    assert named["coil_heating"].params["rise55_k"] == pytest.approx(32.0, rel=0.25)
+    for f in d.findings:
+        assert f.holdout_rmse_after < f.holdout_rmse_before
+
+
+@pytest.mark.slow
 def test_gross_heating_with_supply_wander():
     # a coil 30 K warm at 55 % duty while the supply wanders by 0.3 bar (recorded): both laws, no creep
     named = _named({"supply_pressure": 0.3, "coil_heating": 30.0}, "paper_identification")

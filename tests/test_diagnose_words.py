@@ -311,3 +311,31 @@ def test_lateness_is_the_first_moment_of_the_time_response(tau, phase, delay, ra
     if delay + phase / rate < whole:  # the lag as it was: given the delay's share back, it is as it was
         assert without({**shared[0], "transport_delay": {"delay_s": delay}}, "transport_delay", rate)[-1][
             "valve_dynamics"] == pytest.approx(chain["valve_dynamics"], rel=1e-6)
+
+
+def test_an_asymmetrys_other_reading_is_every_threshold_lifted_by_its_size():
+    # a widening in proportion to each threshold and a lift of every threshold both widen the top of the
+    # loop: the other reading of the same extra width (on the loop of the PI fitted without the law) is
+    # the lift alone, with the widening in proportion held at its lower bound while the two laws on the
+    # valve's input are refined jointly
+    from types import SimpleNamespace
+
+    from models.diagnose.design import major_loop_half_width
+
+    asym = VOCABULARY["asymmetric_hysteresis"]
+    r = np.linspace(0.0, 0.6, 12)
+    w = np.exp(-r / 0.2)
+    w /= w.sum()
+    base = SimpleNamespace(shape=SimpleNamespace(r=r), lift_w=w)
+    h = major_loop_half_width(r, w)
+    sig = _sig(np.full(100, 50.0), np.zeros(100))
+    params = {"widen": 1.5, "lift": 0.2 * h, "start": 0.1}
+    ((other, held),) = asym.readings(params, sig, base)
+    assert held == ("widen",)
+    assert other["widen"] == asym.bounds(sig, base)["widen"][0]
+    assert other["start"] == params["start"]
+    assert other["widen"] + other["lift"] / h == pytest.approx(1.7, rel=0.01)
+    # the linearized law has no other reading; nor has a word with one law on the input
+    assert asym.readings({}, sig, base) == []
+    assert VOCABULARY["coil_heating"].readings({"rise55_k": 30.0, "tau_s": 180.0}, sig, base) == []
+

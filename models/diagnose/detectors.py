@@ -900,6 +900,8 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
             break
         # a static law placed again moves what the others were refined beside (a lag refined beside
         # a cracking duty placed under its earlier phase took up the misplaced jump): once more
+    if _joint_restart(sel, sig, folds):
+        changed = True
     if changed:
         sub = {}
         for step in sel.steps:
@@ -907,6 +909,106 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
             step.base = unbend(sel.reference, sig, sub, folds.train)
     d = build(sel.steps[-1].base, sig, sel.chain)
     sel.params.update(chain_params(sel.chain, d, fit_final(d, sig.flow_lpm, folds.train), sig, sel.steps[-1].base))
+
+
+def _joint_restart(sel: Selection, sig: Signals, folds: Folds) -> bool:
+    """The exact laws of the chain that act on the valve's input (a coil's effective duty, an asymmetry's
+    widened descending thresholds: :attr:`Word.input_side`) refined jointly, from where they are and from
+    the other readings of each at the same size (:meth:`Word.readings`); the reading of least
+    training error is kept unless the chain as it is ties with it (:func:`_tied_chain`), and only where
+    every law stays physical and resolved. Updates ``sel``; returns whether it changed.
+
+    Refined one after the other, each with the other held, two laws on the input trade along a valley
+    that one alternation does not cross: a heating named beside an asymmetry widened in proportion to
+    each threshold has the PI refitted under the two shrink its own loop into the widened one, and a
+    heating and an asymmetry refined in turn from there stay in that basin (a coil 32 K warm with x8 on
+    a mixed recording: read as x65, with 17 % more training error than the lift of every threshold).
+    """
+    root = sel.reference
+    # (the duty's law first: the laws that read the duty the magnetics see are carried along with it)
+    pair = sorted((w for w, p in sel.chain.items() if VOCABULARY[w].input_side and VOCABULARY[w].is_exact(p)
+                   and any(k in p for k in VOCABULARY[w].bounds(sig, root))),
+                  key=lambda w: VOCABULARY[w].input_side != "duty")
+    if len(pair) < 2:
+        return False
+    starts = [(dict(sel.chain), ())]
+    for w in pair:
+        starts += [({**sel.chain, w: p}, tuple((w, k) for k in held))
+                   for p, held in VOCABULARY[w].readings(sel.chain[w], sig, root)]
+    if len(starts) == 1:
+        return False
+    coarse = _subsample(folds.train, START_ROWS)
+    ranked = [(refine_jointly(pair, ch, root, sig, folds, coarse, held), held) for ch, held in starts]
+    best, held = min(ranked, key=lambda r: _chain_sse(pair[0], r[0], root, sig, folds))
+    new = _tied_chain(pair, [sel.chain, refine_jointly(pair, best, root, sig, folds, held=held)], root, sig, folds)
+    if new is sel.chain:
+        return False
+    d, b = design(pair[0], root, sig, new, folds)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    fitted = d.predict(theta)
+    for w in pair:
+        word, others = VOCABULARY[w], {k: p for k, p in new.items() if k != w}
+        phys = word.physical(new[w], _coef(w, d, theta), sig, b, fitted)
+        if (word.implausible(phys) or word.not_resolved(new[w], sig, b) or _at_upper_bound(word, new[w], sig, b)
+                or _beyond_physics(word, new[w], others)):
+            return False
+    sel.chain = new
+    for step in sel.steps:
+        step.params = sel.chain[step.word]
+    return True
+
+
+def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Folds,
+                   rows: np.ndarray | None = None, held: tuple = ()) -> dict:
+    """``chain`` with the exact-law parameters of ``words`` (:meth:`Word.bounds`; but those ``held``,
+    ``(word, parameter)`` pairs) refined together by bounded nonlinear least squares in log scale on
+    ``rows`` (by default a subsample of the training rows, :func:`_subsample`), the PI refitted from
+    ``root`` at each evaluation."""
+    rows = _subsample(folds.train) if rows is None else rows
+    keys, lo, hi = [], [], []
+    for w in words:
+        for k, (a, b) in VOCABULARY[w].bounds(sig, root).items():
+            if k in chain[w] and (w, k) not in held:
+                keys.append((w, k))
+                lo.append(np.log(a))
+                hi.append(np.log(b))
+    lo, hi = np.array(lo), np.array(hi)
+    x0 = np.clip(np.log([max(chain[w][k], 1e-12) for w, k in keys]), lo + 1e-9, hi - 1e-9)
+
+    def at(x):
+        out = {w: dict(p) for w, p in chain.items()}
+        for (w, k), v in zip(keys, np.exp(x).tolist()):
+            out[w][k] = v
+        return out
+
+    def resid(x):
+        return train_residual(design(words[0], root, sig, at(x), folds, rows)[0], sig.flow_lpm, rows)
+
+    res = least_squares(resid, x0, bounds=(lo, hi), diff_step=REFINE_DIFF_STEP, max_nfev=REFINE_EVALS, xtol=1e-3,
+                        ftol=1e-6)
+    return at(res.x)
+
+
+def _chain_sse(word: str, chain: dict, root: Base, sig: Signals, folds: Folds) -> float:
+    """Training error of ``chain`` on a subsample of the training rows, the PI refitted from ``root``."""
+    rows = _subsample(folds.train)
+    return train_sse(design(word, root, sig, chain, folds, rows)[0], sig.flow_lpm, rows)
+
+
+def _tied_chain(words: list, chains: list, root: Base, sig: Signals, folds: Folds) -> dict:
+    """Of ``chains`` (the same words, ``words`` set differently), the one of least training error, unless
+    others tie with it: among those whose error is higher by at most :data:`PHYSICS_TIE` of the error the
+    best explains (against the chain without ``words``), the first whose laws all stay within their words'
+    physics, then by the words' preferences (:meth:`Word.tie_rank`: a coil cold at the start), as
+    :func:`_tied_choice` chooses for one word."""
+    err = [_chain_sse(words[0], ch, root, sig, folds) for ch in chains]
+    best = min(err)
+    rest = {k: p for k, p in chains[0].items() if k not in words}
+    rows = _subsample(folds.train)
+    none = train_sse(build(unbend(root, sig, rest, rows), sig, rest), sig.flow_lpm, rows)
+    near = [i for i, e in enumerate(err) if e - best <= PHYSICS_TIE * max(none - best, 0.0)]
+    return chains[min(near, key=lambda i: (not all(VOCABULARY[w].within_physics(chains[i][w]) for w in words),
+                                           sum(VOCABULARY[w].tie_rank(chains[i][w]) for w in words), err[i]))]
 
 
 def chain_params(chain: dict, d: Design, theta: np.ndarray, sig: Signals, base: Base) -> dict:
