@@ -707,6 +707,52 @@ def test_backward_check_drops_a_word_a_later_one_explains():
     assert D._backward(sel, sig, folds, margins, rnd=3) is None
 
 
+def test_a_word_does_not_earn_its_place_through_the_pi_its_refit_bent(monkeypatch):
+    # a 40 ms lag on steps, and a creep beside it that the valve does not have. Say the PI refitted
+    # under the lag alone came out bent (its refit is a constrained, censored problem of its own,
+    # not the fit's: here, the PI refitted under nothing, which smooths the lag into its loop) while
+    # the one refitted with the creep did not: the chain without the creep keeps that better PI, and
+    # the creep, whose own column adds nothing, does not earn its place
+    from models.diagnose import detectors as D
+    from models.diagnose.calibrate import load_margins
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+
+    rec = _plant_recording({"valve_dynamics": 0.04}, "steps", 60.0)
+    sig = work_signals(rec, None)
+    folds = make_folds(sig.t_s)
+    root, _ = D.reference(fit_baseline(sig, folds), sig, folds)
+    chain = {"valve_dynamics": {"tau_s": 0.04, "phase": 1.0}, "creep": {"tau_s": 5.0}}
+    unbend = D.unbend
+    monkeypatch.setattr(D, "unbend", lambda b, s, c, rows: unbend(b, s, c if "creep" in c else {}, rows))
+
+    cand, why = D.earns("creep", chain, root, sig, folds, load_margins())
+    assert why is not None and "held-out error" in why
+    assert abs(cand.gain) < 0.01
+    # the lag, which the bent PI cannot stand in for, still earns its place
+    assert D.earns("valve_dynamics", chain, root, sig, folds, load_margins())[1] is None
+
+
+def test_a_heating_slower_than_twice_the_recording_is_not_resolved():
+    # over a 300 s recording a coil warming with a 700 s time constant rises along a near ramp in
+    # time, which a slow drift of anything fits (a lag's misfit on a mixed excitation read as a coil
+    # 11 K warm with a 1130 s time constant); within twice the recording its curvature shows
+    from models.diagnose import detectors as D
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+    from models.diagnose.words import VOCABULARY
+
+    sig = work_signals(_plant_recording({"coil_heating": 30.0}, "paper_identification", 300.0), None)
+    base = fit_baseline(sig, make_folds(sig.t_s))
+    w = VOCABULARY["coil_heating"]
+    span_s = sig.t_s[-1] - sig.t_s[0]
+    slow = {"rise55_k": 30.0, "tau_s": 2.3 * span_s, "start": 0.0}
+    assert "tau_s" in D._at_upper_bound(w, slow, sig, base)
+    assert D._at_upper_bound(w, {**slow, "tau_s": 0.6 * span_s}, sig, base) is None
+
+
 @pytest.mark.parametrize("order", [("valve_dynamics", "saturation", "coil_heating", "transport_delay"),
                                    ("transport_delay", "saturation", "coil_heating", "valve_dynamics")])
 def test_holdout_confirms_each_word_with_the_others_in_place(order):

@@ -537,7 +537,11 @@ class CoilHeating(Word):
     def bounds(self, sig, base):
         if sig.coil_temp_c is not None:
             return {"copper_law_ratio": (0.2, 5.0)}
-        box = {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 4.0 * _span(sig))}
+        # a time constant beyond twice the recording, as the screen's grid: the rise over the
+        # recording is then close to a ramp in time, and a slow drift of anything fits it (a lag's
+        # misfit on a mixed excitation, each third another, was read as a coil 11 K warm with a
+        # 1130 s time constant on a 300 s recording)
+        box = {"rise55_k": (0.2, LAW_RISE55_K), "tau_s": (10.0, 2.0 * _span(sig))}
         if self._seated(sig, base):
             return box
         lowest = float(np.min(sig.duty_pct))
