@@ -104,6 +104,30 @@ def test_dead_zone_jump_is_seen_through_a_lag():
     assert not dz._jumps(sig, {"cracking_pct": 42.0}, {})
 
 
+def test_dead_zone_jump_is_read_on_the_valve_opening_from_shut():
+    # breaths and held levels open the valve from shut through a 42 % cracking duty, onto 28 L/min; a
+    # sweep turning back above it holds the valve on a branch its memory keeps far above that. The
+    # jump is the flow on the opening from shut taken down to the cracking duty (a parabola over both
+    # branches dived to zero flow at its foot); a valve opening by itself there from zero flow, however
+    # steeply, shows none beside the same sweep
+    dz, rate, crack = VOCABULARY["dead_zone"], 100.0, 42.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    phase = t % 3.0
+    breaths = np.where(phase < 1.0, 30.0 + 35.0 * np.clip(phase / 0.2, 0.0, 1.0), 30.0)
+    holds = np.where((t[:3000] % 5.0) < 2.5, 38.0, 43.7)
+    sweep = 44.5 + 25.5 * np.abs(((t / 20.0) % 1.0) * 2 - 1)
+    duty = np.r_[breaths, holds, sweep]
+    opens = duty[:-len(sweep)]
+    noise = np.random.default_rng(1).normal(0, 0.3, len(duty))
+    cracking = np.r_[np.where(opens <= crack, 0.0, 28.0 + 3.0 * (opens - crack)), 70.0 + 3.0 * (sweep - 44.5)]
+    sig = _sig(duty, cracking + noise)
+    assert dz._jumps(sig, {"cracking_pct": crack}, {}) and dz._opens_with_jump(sig, {"cracking_pct": crack}, {})
+    by_itself = np.r_[np.clip(10.0 * (opens - crack), 0.0, None), 70.0 + 3.0 * (sweep - 44.5)]
+    sig = _sig(duty, by_itself + noise)
+    assert not dz._jumps(sig, {"cracking_pct": crack}, {})
+    assert not dz._opens_with_jump(sig, {"cracking_pct": crack}, {})
+
+
 def test_dead_zone_rows_are_read_at_the_sensor_behind_a_delay():
     # breaths through a 42 % cracking duty, the flow 30 ms late: the last shut rows at the sensor are
     # those whose duty has already risen past the cracking duty, and there a model without the law

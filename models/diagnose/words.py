@@ -361,6 +361,12 @@ def held_levels(duty_pct: np.ndarray, hi_pct: float) -> np.ndarray:
     return np.unique(levels[levels <= hi_pct])
 
 
+def _spread(x: np.ndarray) -> bool:
+    """Whether duties (%) spread over the band above a cracking duty (:data:`JUMP_BAND_PCT`) enough for
+    a parabola, not two held levels."""
+    return len(np.unique(x)) >= 4 and float(np.ptp(x)) >= JUMP_BAND_PCT if len(x) else False
+
+
 def magnetic_duty(sig: Signals, chain: dict) -> np.ndarray:
     """The duty the valve's magnetics see under ``chain`` (%): the effective duty of its input-side
     word (a warm coil's, :meth:`Word.effective_duty`), else the commanded duty."""
@@ -860,6 +866,23 @@ class DeadZone(Word):
         return {**params, "cracking_pct": c + 1e-6} if c != params["cracking_pct"] else params
 
     @staticmethod
+    def _opening(sig: Signals, x: np.ndarray, c: float) -> np.ndarray:
+        """Rows above the cracking duty ``c`` (on the duty the magnetics see, ``x``) that the valve
+        reached opening from shut: the commanded duty has not fallen since it was last at or below
+        ``c``, or, where the excitation never opens it so, every row above ``c``.
+
+        A cracking duty's jump is the flow the valve passes on its loading curve from rest; above it,
+        the branches the valve's memory holds after an excursion lie apart by the loop's width (a
+        sweep turning back above the cracking duty passes 56 L/min at 2 % above it where a breath
+        opening from shut passes 35, and a parabola over both dived to zero flow at the foot)."""
+        idx = np.arange(len(x))
+        fell = np.r_[False, np.diff(sig.duty_pct) < 0]
+        last_shut = np.maximum.accumulate(np.where(x <= c, idx, -1))
+        last_fall = np.maximum.accumulate(np.where(fell, idx, -1))
+        opening = (x > c) & (last_shut >= 0) & (last_shut > last_fall)
+        return opening if _spread(x[opening & (x <= c + 2.0 * JUMP_BAND_PCT)]) else x > c
+
+    @staticmethod
     def _at_valve(sig: Signals, chain: dict) -> np.ndarray:
         """The measured flow taken back through the time response of ``chain`` (at the valve)."""
         q = sig.flow_lpm
@@ -892,7 +915,8 @@ class DeadZone(Word):
         Zero: 90 % of the rows within :data:`JUMP_BAND_PCT` below the cracking duty carry no flow
         (a valve closing by itself a little below it still passes flow there). The jump: 90 % of
         the rows within half that band above it carry flow, and the flow over twice the band above
-        it, a parabola in the duty, extrapolated to the cracking duty is well above zero. A valve
+        it, a parabola in the duty, extrapolated to the cracking duty is well above zero; both on
+        the rows the valve reached opening from shut (:meth:`_opening`). A valve
         opening by itself rises from zero flow there, however steeply, and a coarse sampling of a
         fast rise does not move the intercept; a cracking duty opens onto the flow the valve would
         already pass. A parabola, because a valve's flow just above its own opening bends (a
@@ -902,14 +926,15 @@ class DeadZone(Word):
         zero = self._zero_lpm(sig, q)
         x, c = magnetic_duty(sig, chain), params["cracking_pct"]
         below = (x > c - JUMP_BAND_PCT) & (x <= c)
-        above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT)
+        opening = self._opening(sig, x, c)
+        above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT) & opening
         # (a parabola needs duties spread over the band, not two held levels)
-        if below.sum() < MIN_END_ROWS or len(np.unique(x[above])) < 4 or np.ptp(x[above]) < JUMP_BAND_PCT:
+        if below.sum() < MIN_END_ROWS or not _spread(x[above]):
             return False
         if float(np.percentile(np.abs(q[below]), 90)) > zero:
             return False
         # (a parabola through a jump further up the band overshoots at its ends)
-        near = (x > c) & (x <= c + JUMP_BAND_PCT / 2)
+        near = (x > c) & (x <= c + JUMP_BAND_PCT / 2) & opening
         if near.sum() < MIN_END_ROWS or float(np.percentile(q[near], 10)) <= zero:
             return False
         return float(np.polynomial.polynomial.polyfit(x[above] - c, q[above], 2)[0]) > zero
@@ -923,13 +948,14 @@ class DeadZone(Word):
         """
         q = self._at_valve(sig, chain)
         x, c = magnetic_duty(sig, chain), params["cracking_pct"]
-        band = (x > c) & (x <= c + JUMP_BAND_PCT)
+        opening = self._opening(sig, x, c)
+        band = (x > c) & (x <= c + JUMP_BAND_PCT) & opening
         shut = x <= c
         if band.sum() < MIN_END_ROWS or shut.sum() < MIN_END_ROWS:
             return False
         opened = float(np.median(q[band]))
-        above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT)
-        if len(np.unique(x[above])) >= 4 and np.ptp(x[above]) >= JUMP_BAND_PCT:
+        above = (x > c) & (x <= c + 2.0 * JUMP_BAND_PCT) & opening
+        if _spread(x[above]):
             # duties spread over the band: the flow taken down to the cracking duty itself (a valve
             # opening by itself from zero there rises through the band without a jump at its foot)
             opened = float(np.polynomial.polynomial.polyfit(x[above] - c, q[above], 2)[0])
