@@ -420,6 +420,40 @@ def test_a_pi_refitted_under_a_dead_zone_behind_a_lag_fits_that_valve_to_its_noi
     assert np.sqrt(cv.test.sum() / cv.n.sum()) < 1.5 * noise
 
 
+def test_a_pi_refitted_under_a_warm_coil_and_a_dead_zone_passes_its_operators_where_the_magnetics_open_it():
+    # a warm coil lowers the duty the magnetics see, and the plunger cracks on that: a PI refitted
+    # under a heating and a dead zone has its operators shut wherever the effective duty is below the
+    # cracking duty (also where the commanded duty is above it), and behind a lag the chain at its
+    # true settings predicts the held-out folds to about the sensor's noise
+    from models.diagnose.design import build, fit_baseline, unbend
+    from models.diagnose.signals import Signals
+    from models.diagnose.words import magnetic_duty
+    from plant_sim.plant import Plant, load_plant
+    from plant_sim.protocols import random_holds
+
+    rate, noise, heat, crack = 100.0, 0.3, 40.0, 43.0
+    t = np.arange(0.0, 90.0, 1.0 / rate)
+    breaths = np.where(t % 3.0 < 1.0, 34.0 + 30.0 * np.clip((t % 3.0) / 0.2, 0.0, 1.0), 34.0)
+    duty = np.concatenate([random_holds(rate, 90.0, 9, lo_pct=38.0, hi_pct=72.0), breaths])
+    heating = {"rise55_k": heat, "tau_s": 180.0, "start": 0.0}
+    for tau in (0.0, 0.03):
+        effects = {"coil_heating": heat, "dead_zone": crack, **({"valve_dynamics": tau} if tau else {})}
+        plant = Plant(load_plant("config/plant.toml", effects=effects, noise_lpm=noise), rate, seed=9)
+        sig = Signals(np.arange(len(duty)) / rate, duty, np.asarray(plant.simulate(duty)["flow_lpm"], float),
+                      None, None, rate)
+        folds = make_folds(sig.t_s)
+        chain = {"coil_heating": heating, "dead_zone": {"cracking_pct": crack + 1e-6},
+                 **({"valve_dynamics": {"tau_s": tau, "phase": 1.0}} if tau else {})}
+        root = fit_baseline(sig, folds)
+        x = magnetic_duty(sig, chain)
+        if not tau:
+            assert np.any((duty > crack) & (x < crack))  # commanded open, magnetically shut
+            assert np.all(root.regressors_at_sensor(sig, chain)[x < crack] == 0.0)
+            continue
+        cv = cross_validate(build(unbend(root, sig, chain, folds.train), sig, chain), sig.flow_lpm, folds)
+        assert np.sqrt(cv.test.sum() / cv.n.sum()) < 1.25 * noise
+
+
 @pytest.mark.slow  # ~6 s
 def test_a_cracking_duty_is_placed_again_beside_the_lag_refined_with_it():
     # a cracking duty chosen beside a lag sized before it was known is a held level off; refined once
