@@ -152,6 +152,18 @@ def test_a_heating_is_placed_beside_the_recorded_supply():
     d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
     assert G.judge(probe, d) == []
 
+@pytest.mark.parametrize("heat_k,offset_lpm,seed", [(30.0, 2.0, 2201), (25.0, -1.5, 2202)])
+def test_a_sensor_offset_beside_a_heating_is_named_at_its_size(heat_k, offset_lpm, seed):
+    """A warm coil and a sensor offset on a mixed excitation, against the model file: named first, the
+    heating took up the offset in its size and time constant (32.8 K and 271 s for 30 K and 180 s) and
+    the offset beside it gained too little to be named; tested with the heating refined jointly with it,
+    both are named at their size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("coil_heating", heat_k), ("sensor_offset", offset_lpm)), "mixed", seed, 0.3)
+    d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
+    assert G.judge(probe, d) == []
+
+
 # -- recordings made without plant_sim (bench/diagnose_foreign.py): the diagnosis is built for the physics --
 
 @pytest.mark.parametrize("exc", ["breaths", "chirp"])

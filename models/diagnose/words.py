@@ -97,6 +97,10 @@ class Word:
         Exact-law parameters whose box ends are settings of the law itself (a valve's input floor
         at the lowest commanded duty, or below every effective duty), not a refinement that ran off
         its range (:func:`models.diagnose.detectors._inside`).
+    shifts_level : bool
+        Its column moves the flow's level along the whole recording, as the size and time constant
+        of an input-side exact law do (a heating lowers the flow more the warmer the coil): tested
+        with those laws refined jointly with it (:func:`models.diagnose.detectors.test_effect`).
     """
 
     word: str
@@ -112,6 +116,7 @@ class Word:
     ratio_of: dict = field(default_factory=dict)
     resolution: dict = field(default_factory=dict)
     settled_ends: tuple = ()
+    shifts_level: bool = False
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
@@ -1142,7 +1147,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         whole_plot=True),
     SensorOffset(
         "sensor_offset", "constant zero offset of the flow sensor",
-        {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}),
+        {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}, shifts_level=True),
 )}
 #: The effect words of DESIGN.md.
 WORDS = tuple(VOCABULARY)
