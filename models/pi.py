@@ -260,7 +260,7 @@ class SlopeRows:
         return cls(YD, YD.T @ YD, YD.sum(axis=0))
 
 
-def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarray, float, np.ndarray]:
+def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE, step_ridge: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
     """:func:`fit_weights` (constrained, with extra columns) on the union of row sets, from their
     normal equations.
 
@@ -271,6 +271,11 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarra
         extra columns on its rows (n, p).
     min_slope : float
         Lower bound for the loading-curve slopes, normalized units.
+    step_ridge : float
+        A ridge ``step_ridge * sum_{i>=1} w_i^2`` on the weights of the operators with a threshold (the
+        steps of the loading-curve slope): a step the rows do not identify (operators that move
+        together, or hardly at all) stays near zero, the slope going on as the rows below it tell,
+        instead of opposite steps running off against each other.
 
     Returns
     -------
@@ -302,11 +307,23 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE) -> tuple[np.ndarra
         Atb[m] += y.sum()
         Atb[m + 1:] += Es.T @ y
     G = np.triu(G) + np.triu(G, 1).T
+    if step_ridge > 0:
+        # on the steps w_i = s_i - s_(i-1), i >= 1, of the slopes s the solver works in: a tridiagonal
+        # D^T D of the m - 1 differences
+        i = np.arange(m)
+        G[i, i] += step_ridge * np.where((i > 0) & (i < m - 1), 2.0, 1.0)
+        G[i[:-1], i[1:]] -= step_ridge
+        G[i[1:], i[:-1]] -= step_ridge
     lb = np.concatenate([np.full(m, min_slope), np.full(1 + p, -np.inf)])
     R = _cholesky_triangle(G)
     if R is None:  # ill conditioned: the rows themselves, compressed by QR
         A = np.vstack([np.column_stack([ops.YD, np.ones(len(y)), E / scale]) for ops, y, E in parts])
-        theta = _least_squares(A, np.concatenate([y for _, y, _ in parts]), lb)
+        b = np.concatenate([y for _, y, _ in parts])
+        if step_ridge > 0:
+            D = np.sqrt(step_ridge) * (np.eye(m, k=1) - np.eye(m))[:-1]
+            A = np.vstack([A, np.column_stack([D, np.zeros((m - 1, 1 + p))])])
+            b = np.concatenate([b, np.zeros(m - 1)])
+        theta = _least_squares(A, b, lb)
     else:
         theta = _bounded(R, np.linalg.solve(R.T, Atb), lb)
     return np.diff(theta[:m], prepend=0.0), float(theta[m]), theta[m + 1:] / scale

@@ -240,6 +240,29 @@ def test_fit_from_normal_equations_is_fit_weights_on_the_union_of_rows():
         np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12)
 
 
+def test_a_slope_step_the_rows_do_not_identify_stays_near_zero():
+    # two operators the rows move together (identical columns) leave the split of their steps unidentified:
+    # the ridge on the steps gives each half of their sum, not a pair of opposite steps, and the identified
+    # steps are still fitted from the rows as without it
+    from models.pi import SlopeRows, fit_weights_on, regressors, thresholds
+
+    rng = np.random.default_rng(5)
+    r = thresholds(8)
+    x = np.cumsum(rng.normal(0, 0.05, 3000))
+    x = 1.6 * (x - x.min()) / np.ptp(x) - 1  # never reaches the widest operators' thresholds twice
+    Y = regressors(r, x)
+    Y[:, -1] = Y[:, -2]
+    w_true = np.r_[0.5, np.full(7, 0.05), 0.3]
+    y = Y @ w_true + rng.normal(0, 1e-3, len(x))
+    parts = [(SlopeRows.of(Y), y, np.zeros((len(x), 0)))]
+    w, c, _ = fit_weights_on(parts, step_ridge=1e-7 * len(x))
+    np.testing.assert_allclose(w[-2:], [0.175, 0.175], atol=0.01)
+    np.testing.assert_allclose(w[:-2], w_true[:-2], atol=0.01)
+    assert np.sqrt(np.mean((Y @ w + c - y) ** 2)) < 2e-3
+    w_free, _, _ = fit_weights_on(parts)
+    np.testing.assert_allclose(w_free[:-2], w[:-2], atol=0.01)
+
+
 def test_cross_validation_recovers_a_linear_law():
     rng = np.random.default_rng(3)
     t = np.arange(0, 120, 0.05)
