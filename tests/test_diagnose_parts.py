@@ -154,6 +154,86 @@ def test_creep_drifts_after_each_reversal_by_the_last_step():
     assert s2[-1] == pytest.approx(20.0 - 50.0)  # went down by 30 L/min between the reversals
 
 
+def test_an_input_that_never_turns_back_leaves_nothing_to_creep_after():
+    # a duty that only rises (or a warm coil's effective duty held at the valve's input floor
+    # throughout) has no reversal: no step, no creep
+    q = np.linspace(10.0, 50.0, 200)
+    for direction in (np.r_[0.0, np.ones(199)], np.zeros(200)):
+        assert np.all(fx.reversal_step(q, direction) == 0.0)
+        assert np.all(fx.creep(q, direction, 10.0, 5.0) == 0.0)
+
+
+def test_a_creep_beside_a_warm_coil_is_also_screened_on_the_duty_the_magnetics_see():
+    from models.diagnose.words import VOCABULARY
+
+    creep, sig = VOCABULARY["creep"], _plain_sig()
+    assert creep.placed(sig, {}) == [] and creep.choices({"tau_s": 5.0}, sig, {}) == []
+    warm = {"coil_heating": {"rise55_k": 30.0, "tau_s": 180.0, "start": 0.0}}
+    placed = creep.placed(sig, warm)
+    assert placed and all(p["magnetic"] for p in placed)
+    assert {p["tau_s"] for p in placed} == set(creep.grid(sig, None)["tau_s"])
+    assert creep.choices({"tau_s": 5.0}, sig, warm) == [{"tau_s": 5.0, "magnetic": 1.0}]
+    assert creep.choices({"tau_s": 5.0, "magnetic": 1.0}, sig, warm) == [{"tau_s": 5.0}]
+    # a first-order heating column leaves the duty the magnetics see alone
+    assert creep.placed(sig, {"coil_heating": {"tau_s": 180.0, "start": 0.0}}) == []
+
+
+def _plain_sig():
+    from models.diagnose.signals import Signals
+
+    t = np.arange(0.0, 200.0, 0.1)
+    duty = 55.0 + 15.0 * np.sin(2 * np.pi * t / 20.0)
+    return Signals(t, duty, 2.0 * duty, None, None, 10.0)
+
+
+def _plant_chain_fit(duty, effects, chain, noise=0.3, rate=100.0):
+    """Held-out RMSE over the noise, and the creep's amplitude, of ``chain`` (the PI refitted under it)
+    on a plant_sim recording of ``duty`` with ``effects``."""
+    from models.diagnose.design import build, fit_baseline, unbend
+    from models.diagnose.signals import Signals
+    from plant_sim.plant import Plant, load_plant
+
+    plant = Plant(load_plant("config/plant.toml", effects=effects, noise_lpm=noise), rate, seed=9)
+    sig = Signals(np.arange(len(duty)) / rate, duty, np.asarray(plant.simulate(duty)["flow_lpm"], float),
+                  None, None, rate)
+    folds = make_folds(sig.t_s)
+    d = build(unbend(fit_baseline(sig, folds), sig, chain, folds.train), sig, chain)
+    cv = cross_validate(d, sig.flow_lpm, folds)
+    theta = fit_final(d, sig.flow_lpm, folds.train)
+    return np.sqrt(cv.test.sum() / cv.n.sum()) / noise, float(theta[list(d.names).index("creep")])
+
+
+@pytest.mark.slow  # ~5 s
+def test_a_creeping_plunger_opens_a_valve_its_reference_has_just_shut():
+    # breaths resting just below the valve's opening: after each breath's reversal the plunger creeps
+    # on open, and the valve passes flow at rest (a few L/min) where the PI fitted on the recording has
+    # it shut, running on below zero flow. The creep's column acts there too (before the floor): at
+    # its true time constant the chain predicts the held-out folds near the noise and reads its size
+    t = np.arange(0.0, 120.0, 0.01)
+    duty = np.where(t % 3.0 < 1.0, 34.0 + 32.0 * np.clip((t % 3.0) / 0.2, 0.0, 1.0), 34.0)
+    rmse, amp = _plant_chain_fit(duty, {"creep": 0.2}, {"creep": {"tau_s": 20.0}})
+    assert rmse < 2.0
+    assert amp == pytest.approx(0.2, rel=0.1)
+
+
+@pytest.mark.slow  # ~8 s
+def test_a_plunger_driven_by_a_warm_coil_creeps_after_the_reversals_of_its_current():
+    # random holds with a coil 30 K warm: through each hold the coil warms (or cools) and its current
+    # falls (or rises), so the plunger turns back at the start of the hold, not at the next commanded
+    # reversal. Read on the duty the magnetics see, the creep beside the true heating predicts the
+    # held-out folds near the noise and reads its size; on the commanded duty it does neither
+    from plant_sim.protocols import random_holds
+
+    duty = random_holds(100.0, 120.0, 9, lo_pct=38.0, hi_pct=72.0)
+    heating = {"rise55_k": 30.0, "tau_s": 180.0, "start": 0.0}
+    effects = {"coil_heating": 30.0, "creep": 0.15}
+    rmse, amp = _plant_chain_fit(duty, effects, {"coil_heating": heating, "creep": {"tau_s": 20.0, "magnetic": 1.0}})
+    assert rmse < 1.5
+    assert amp == pytest.approx(0.15, rel=0.1)
+    rmse_cmd, amp_cmd = _plant_chain_fit(duty, effects, {"coil_heating": heating, "creep": {"tau_s": 20.0}})
+    assert rmse_cmd > 2.0 * rmse and abs(amp_cmd - 0.15) > 0.3 * 0.15
+
+
 def test_descending_lift_of_one_operator_follows_its_bounds():
     from models.diagnose.design import pi_columns
 

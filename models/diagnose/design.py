@@ -483,7 +483,8 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
         cols += [F, np.ones(n), loop, slope, *epochs.T]
         names += ["gain", "offset", "loop_width", "duty_scale"] + ["memory"] * epochs.shape[1]
         F = np.zeros(n)
-    valve_ctx = Columns(sig, ref, lift, slope, supply_ref_bar=base.supply_ref_bar)
+    valve_ctx = Columns(sig, ref, lift, slope, supply_ref_bar=base.supply_ref_bar,
+                        core_input=core_input(base, sig, chain))
     for w, p in chain.items():
         for col in VOCABULARY[w].valve_columns(valve_ctx, p):
             cols.append(col)
@@ -491,15 +492,27 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
     Xv = at_valve(np.column_stack(cols) if cols else np.zeros((n, 0)), sig, chain)
     ref_v = Xv[:, 0] if base.refit else at_valve(ref, sig, chain)
     # an effect at the valve moves no flow where the reference has the valve shut (the floor's
-    # active set): a creeping plunger or a warm coil does not open a closed valve
+    # active set): a warm coil does not open a closed valve. But a law that moves the plunger before
+    # the floor (:attr:`Word.before_floor`: a creep) does, where the valve is not measured shut and
+    # the reference runs on below zero flow (a PI fitted on the recording, down its loading curve:
+    # how far the valve is from opening); behind a time response every column is linearized at the
+    # reference's active set (breaths resting at 30 % with a creep of 0.2: the chain's training
+    # error 1.40 x the noise floor with the column on every shut row, 1.10 x zeroed on them, 1.08 x
+    # zeroed on those measured shut)
     first = 4 if base.refit else 0
-    if Xv.shape[1] > first:
-        Xv[:, first:] *= (ref_v > 0.0)[:, None]
-    F_v = F if base.refit else ref_v
     clip_hi = clip_of(chain)
     shut = base.shut(sig)
     floor = bool(shut.any())
-    if (clip_hi is not None or floor) and has_dynamics(chain):
+    at_set = (clip_hi is not None or floor) and has_dynamics(chain)
+    shut_v = ref_v <= 0.0
+    for i in range(first, Xv.shape[1]):
+        word = VOCABULARY.get(names[i])
+        if at_set or not (base.refit and word is not None and word.before_floor):
+            Xv[shut_v, i] = 0.0
+        else:
+            Xv[shut_v & shut, i] = 0.0
+    F_v = F if base.refit else ref_v
+    if at_set:
         # the valve's full-open stop and its no-reverse-flow floor act on the flow at the valve, and
         # the sensor sees the clipped flow through the delay and lag: a lagged flow rises to the
         # plateau from below and leaves a shut valve from zero, not from where a PI's loading curve
@@ -525,7 +538,7 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
         ref = X[:, 0] if base.refit else through_dynamics(ref_v, sig, chain)
         if not base.refit:
             F = ref
-    sensor_ctx = Columns(sig, valve_ctx.flow_lpm, lift, slope, ref, base.supply_ref_bar)
+    sensor_ctx = Columns(sig, valve_ctx.flow_lpm, lift, slope, ref, base.supply_ref_bar, valve_ctx.core_input)
     extra = []
     for w, p in chain.items():
         for col in VOCABULARY[w].sensor_columns(sensor_ctx, p):
@@ -539,6 +552,13 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
     # floor or the clip where the baseline reaches that bound too, and fitted where it does not
     top, reach = base.plateau(sig, chain)
     return Design(F, X, tuple(names), ~((shut & (ref <= 0.0)) | (top & (ref >= reach))), clip_hi, floor)
+
+
+def core_input(base: Base, sig: Signals, chain: dict) -> np.ndarray:
+    """The hysteresis core's normalized input under ``chain``: the duty the magnetics see
+    (:func:`inputs`, a warm coil's effective duty held at the valve's input floor), held to a model
+    file's identified range (:meth:`Base.unit_input`)."""
+    return base.unit_input(inputs(sig, chain)[0])
 
 
 def clip_of(chain: dict) -> float | None:

@@ -1206,6 +1206,12 @@ def _refined_beside(word: str, chain: dict, root: Base, sig: Signals, folds: Fol
     rows = _subsample(folds.train)
     old = train_sse(design(word, root, sig, chain, folds, rows)[0], sig.flow_lpm, rows)
     new = refine(word, others, params, root, sig, folds)
+    choices = w.choices(new, sig, others)
+    if choices:
+        # the settings a refinement keeps fixed that the other words now tell apart (a creep's
+        # reversals on the commanded duty or on the one the magnetics see, once a heating is named)
+        new = _tied_choice(w, others, [new, *(refine(word, others, c, root, sig, folds) for c in choices)],
+                           root, sig, folds)
     starts = w.restarts(sig, root) if restart else []
     if starts:
         # a law named before the others took up part of their misfit in a basin of its valley that

@@ -209,6 +209,8 @@ def reversal_step(flow_lpm: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """
     flow_lpm = np.asarray(flow_lpm, dtype=np.float64)
     rev = np.flatnonzero((direction[1:] != direction[:-1]) & (direction[:-1] != 0)) + 1
+    if not len(rev):  # never turned back: no step to creep after
+        return np.zeros(len(flow_lpm))
     # the reversal instant is the last sample of the old branch (the extreme of the input)
     at = np.concatenate([[flow_lpm[0]], flow_lpm[np.maximum(rev - 1, 0)]])
     step = np.diff(at)  # step j holds from reversal j on
