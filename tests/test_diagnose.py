@@ -448,21 +448,24 @@ def test_a_staircase_at_the_valves_memory_epochs_is_not_read_as_heat():
     # each new highest breath (by 1.2 L/min, then 0.23, on this seed), which the 50-operator PI gets
     # wrong by a different amount in each memory epoch, and a coil's thermal state took the
     # staircase up. With a free offset per epoch a slow heating explains too little to be named (nor
-    # is the one the search refines, its time constant now run onto the recording's bound); a true
-    # heating on the same breaths is named at its rise, and a recording whose valve is open at its
+    # is the one the search refines, its time constant now run onto the recording's bound; and a
+    # baseline that holds its PI's input at the valve's seat leaves it under its margin before that); a
+    # true heating on the same breaths is named at its rise, and a recording whose valve is open at its
     # first row has no epochs
     from models.diagnose import detectors as D
     from models.diagnose import load_margins, make_folds, memory_start_s, running_rows
     from models.diagnose.design import fit_baseline, memory_epochs, unbend
     from models.diagnose.signals import work_signals
-    from models.diagnose.trace import NOT_PHYSICAL
+    from models.diagnose.trace import BELOW_MARGIN, NOT_PHYSICAL
 
     rec = _plant_recording({}, "breaths", 300.0, seed=2011)
     E = memory_epochs(work_signals(rec, None))
     assert E.shape[1] >= 2 and np.all(np.diff(E, axis=0) >= 0)  # steps up, each once
     d = diagnose_response(rec)
     assert d.findings == []
-    assert [t for t in d.trace if t.word == "coil_heating" and t.outcome == NOT_PHYSICAL]
+    heat = [t for t in d.trace if t.word == "coil_heating"]
+    assert heat and all(t.outcome in (BELOW_MARGIN, NOT_PHYSICAL) for t in heat)
+    assert all("memory epoch" in t.why for t in heat if t.outcome == NOT_PHYSICAL)
     run, rest = running_rows(rec)
     sig = work_signals(run, rest)
     folds = make_folds(sig.t_s, start_s=memory_start_s(sig))

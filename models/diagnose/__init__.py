@@ -205,6 +205,9 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
         "baseline": {"kind": base.model.kind,
                      "source": "model file (held fixed)" if model is not None else
                      "paper's symmetric PI, n = 50, fitted on the training rows only",
+                     **({"seat": {"seat_pct": base.seat[0], "gain_lpm_per_pct": base.seat[1],
+                                  "meaning": "the PI's input is held at the seat duty; below it the flow "
+                                             "closes along a line of this slope"}} if base.seat else {}),
                      "holdout": metrics(y[hold], baseline_lpm[hold]).to_dict()},
         "augmented": {"effects": {f.effect: f.params for f in findings},
                       "units": {f.effect: VOCABULARY[f.effect].units for f in findings},

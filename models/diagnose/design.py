@@ -39,7 +39,7 @@ import numpy as np
 
 from .. import play
 from ..model import FittedModel
-from ..pi import PIModel, SlopeRows, fit_pi, fit_weights, fit_weights_on
+from ..pi import PIModel, SlopeRows, fit_pi, fit_weights, fit_weights_on, thresholds
 from ..preprocess import Scaling
 from . import effects as fx
 from .folds import Folds
@@ -97,6 +97,11 @@ class Base:
     parent : Base, optional
         For a PI refitted jointly with an effect (:func:`unbend`): the baseline whose loop
         offset, descending lift and slope the effect columns were fitted with.
+    seat : tuple, optional
+        For a PI fitted on the recording: ``(seat_pct, gain_lpm_per_pct)``, the duty below which
+        the valve's plunger sits on its seat (the PI's input is held there) and the slope of the
+        line the flow closes along below it (:func:`fit_baseline`); ``None``: the PI spans the
+        recording's whole duty range.
     """
 
     refit: bool
@@ -105,6 +110,7 @@ class Base:
     shape_scale: Scaling
     lift_w: np.ndarray
     parent: "Base | None" = None
+    seat: tuple | None = None
     cache: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -141,7 +147,8 @@ class Base:
         x, a, key = inputs(sig, chain)
         if self.refit:
             return self._cached(("q", id(sig), key), lambda: self.model.y_scale.from_unit(
-                self.regressors(sig, chain) @ self.shape.w + self.shape.offset))
+                self.regressors(sig, chain) @ self.shape.w + self.shape.offset)
+                + (0.0 if self.seat is None else self.seat[1] * seat_line(x, self.seat[0])))
         if any(a[:2]) and isinstance(self.model.core, PIModel):
             # the model file run as the simulated valve runs it (its input held to the identified
             # range, closing below it, no reverse flow), plus what the lifted descending thresholds
@@ -155,9 +162,11 @@ class Base:
     def unit_input(self, duty_pct: np.ndarray) -> np.ndarray:
         """A duty (%) as the hysteresis core's normalized input: a model file's valve holds it to the
         identified range [-1, 1] (seated below it, fully open above it, as the simulated valve runs
-        it); a PI fitted on the recording spans the recording's own range."""
-        u = self.shape_scale.to_unit(duty_pct)
-        return u if self.refit else np.clip(u, -1.0, 1.0)
+        it); a PI fitted on the recording spans the recording's own range above its seat duty, and
+        holds its input there below it (:attr:`seat`)."""
+        if self.refit:
+            return self.shape_scale.to_unit(duty_pct if self.seat is None else np.maximum(duty_pct, self.seat[0]))
+        return np.clip(self.shape_scale.to_unit(duty_pct), -1.0, 1.0)
 
     def shut(self, sig: Signals) -> np.ndarray:
         """Rows where a PI fitted on the recording is left to the valve's no-reverse-flow floor: the
@@ -775,18 +784,113 @@ def fit_final(design: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 def fit_baseline(sig: Signals, folds: Folds, n: int = BASELINE_N) -> Base:
     """The paper's symmetric PI (Eq. 2-4, ``n`` operators, constrained) fitted on the training rows only,
-    but those where the valve is shut by itself (:meth:`Base.shut`: left to the no-reverse-flow floor)."""
-    xs = Scaling.from_data(sig.duty_pct)
-    ys = Scaling.from_data(sig.flow_lpm[folds.train])
-    x_unit, y_unit = xs.to_unit(sig.duty_pct), ys.to_unit(sig.flow_lpm)
+    but those where the valve is shut by itself (:meth:`Base.shut`: left to the no-reverse-flow floor).
+
+    Where the valve shuts by itself, the PI may hold its input at a seat duty and the flow close
+    below it along a line of its own (:func:`seat_duties`, :attr:`Base.seat`): the seat duty of
+    those tried whose fit leaves the least training error, or none."""
     shut = shut_rows(sig.flow_lpm)
+    best = _seated_fit(sig, folds, n, shut, None)
+    seats = seat_duties(sig, shut)
+    noise = noise_lpm(sig.flow_lpm)
+    unseated = best
+    for h in seats:
+        fit = _seated_fit(sig, folds, n, shut, h)
+        if fit[0] < best[0] and _closes_where_it_opens(fit, seats, noise):
+            best = fit
+    # the seat is placed from the rows the duty crosses on its way up from shut (a breath's rise): a
+    # recording that dwells below it with the valve open (a sweep turning back there, holds between
+    # a cracking duty and the seat) shows there what a static line would flatten (a coil 30 K warm on
+    # the paper sweep, 5 % of its rows open below a seat at 44 %, read as a clip); a seat moved down
+    # to leave them out mimics a cracking duty just below it
+    if best[4] is not None and np.sum(folds.train & ~shut & (sig.duty_pct < best[4][0])) > SEAT_TRANSIT * np.sum(folds.train):
+        best = unseated
+    _, core, xs, ys, seat, rows = best
+    model = FittedModel("pi", core, xs, ys, meta={"source": "fitted on the training rows", "n": n,
+                                                  **({"seat_pct": seat[0], "seat_gain_lpm_per_pct": seat[1]}
+                                                     if seat else {})})
+    held = sig.duty_pct if seat is None else np.maximum(sig.duty_pct, seat[0])
+    y_pi = ys.to_unit(sig.flow_lpm - (0.0 if seat is None else seat[1] * seat_line(sig.duty_pct, seat[0])))
+    return Base(True, model, core, xs, density(core, xs, sig, y_pi, rows, held), seat=seat)
+
+
+#: Seat duties tried: this many, evenly from the duty where the valve opens from shut
+#: (:func:`seat_duties`) up to :data:`SEAT_SPAN` of the way to the highest duty.
+SEAT_POINTS = 12
+SEAT_SPAN = 0.15
+#: Steepest line a valve closes along below its seat, in multiples of its PI's mean gain (flow
+#: range over duty range): a valve that opens with a jump (a cracking duty) is no seat.
+SEAT_GAIN_MAX = 1.25
+#: Most training rows open below a seat, as a share of all: the rows a duty crosses in transit.
+SEAT_TRANSIT = 0.01
+#: Fewest open rows below the seat for a refit to refit the line (else it keeps the baseline's).
+MIN_SEAT_ROWS = 5
+
+
+def seat_line(duty_pct: np.ndarray, seat_pct: float) -> np.ndarray:
+    """The line (%, at most zero) a valve closes along below its seat duty: ``min(duty - seat, 0)``."""
+    return np.minimum(duty_pct - seat_pct, 0.0)
+
+
+def seat_duties(sig: Signals, shut: np.ndarray) -> np.ndarray:
+    """Seat duties to try (%): none unless the valve shuts by itself on some rows; else
+    :data:`SEAT_POINTS` from the duty that best splits the rows into shut below it and open above
+    it, up :data:`SEAT_SPAN` of the way to the highest duty."""
+    if not shut.any() or shut.all():
+        return np.zeros(0)
+    order = np.argsort(sig.duty_pct, kind="stable")
+    xs, opened = sig.duty_pct[order], ~shut[order]
+    wrong = np.cumsum(opened) + (np.sum(~opened) - np.cumsum(~opened))
+    lo = float(xs[int(np.argmin(wrong))])
+    hi = float(xs[-1])
+    return np.linspace(lo, lo + SEAT_SPAN * (hi - lo), SEAT_POINTS)
+
+
+def _closes_where_it_opens(fit: tuple, seats: np.ndarray, noise: float) -> bool:
+    """Whether the line of a seated fit (:func:`_seated_fit`) comes to zero flow where the recording's
+    valve opens from shut (``seats[0]``), within what the noise and the seat grid's step blur: a
+    valve that opens with a jump (a cracking duty) is fitted by no line that does (its line runs on
+    down through the shut rows below the jump)."""
+    _, core, xs, ys, (h, g), _ = fit
+    if g <= 0.0:
+        return False
+    bottom = float(ys.from_unit(core.w @ (core.r - 1.0) + core.offset))  # at the seat, after a descent to it
+    zero = h - bottom / g
+    step = float(seats[1] - seats[0]) if len(seats) > 1 else 0.0
+    return seats[0] - zero <= SHUT_NOISE * noise / g + step
+
+
+def _seated_fit(sig: Signals, folds: Folds, n: int, shut: np.ndarray, seat_pct: float | None) -> tuple:
+    """The baseline PI with its input held at ``seat_pct`` (None: not held) and the line below it
+    fitted jointly: ``(training squared error, core, duty scaling, flow scaling, seat, rows)``."""
+    x = sig.duty_pct if seat_pct is None else np.maximum(sig.duty_pct, seat_pct)
+    xs = Scaling.from_data(x)
+    ys = Scaling.from_data(sig.flow_lpm[folds.train])
+    x_unit, y_unit = xs.to_unit(x), ys.to_unit(sig.flow_lpm)
+    r = thresholds(n, x_max=float(np.max(np.abs(x_unit))))
+    Y = pi_columns(r, x_unit)
+    line = np.zeros((len(x), 0)) if seat_pct is None else seat_line(sig.duty_pct, seat_pct)[:, None] / ys.half_range
+    g_max = SEAT_GAIN_MAX * ys.half_range / xs.half_range
+
+    def fit(rows):
+        w, offset, c = fit_weights(Y[rows], y_unit[rows], extra=line[rows])
+        g = float(c[0]) if line.shape[1] else 0.0
+        if not 0.0 <= g <= g_max:  # held at the nearest physical slope
+            g = min(max(g, 0.0), g_max)
+            w, offset, _ = fit_weights(Y[rows], y_unit[rows] - g * line[rows, 0])
+        return w, offset, g
+
     rows = folds.train & ~shut
-    core = fit_pi(x_unit, y_unit, n=n, rows=rows)
+    w, offset, g = fit(rows)
+    q = Y @ w + offset + (g * line[:, 0] if line.shape[1] else 0.0)
     if shut.any():  # refitted with the shut rows where it has the valve open (censored rows)
-        rows = folds.train & ~(shut & (core.predict(x_unit)[0] <= ys.to_unit(0.0)))
-        core = fit_pi(x_unit, y_unit, n=n, rows=rows)
-    model = FittedModel("pi", core, xs, ys, meta={"source": "fitted on the training rows", "n": n})
-    return Base(True, model, core, xs, density(core, xs, sig, y_unit, rows))
+        rows = folds.train & ~(shut & (q <= ys.to_unit(0.0)))
+        w, offset, g = fit(rows)
+        q = Y @ w + offset + (g * line[:, 0] if line.shape[1] else 0.0)
+    pred = clip(ys.from_unit(q), None, bool(shut.any()))
+    e = (sig.flow_lpm - pred)[folds.train]
+    seat = None if seat_pct is None else (float(seat_pct), g)
+    return float(e @ e), PIModel(r, w, offset), xs, ys, seat, rows
 
 
 def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndarray, shut: np.ndarray,
@@ -838,9 +942,11 @@ def censored_fit(Y: np.ndarray, y_unit: np.ndarray, H: np.ndarray, rows: np.ndar
     return w, offset, coef
 
 
-def density(shape: PIModel, xs: Scaling, sig: Signals, y_unit: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Non-negative play-operator weights over ``shape``'s thresholds fitted to ``y_unit`` on ``rows``."""
-    Y = pi_columns(shape.r, xs.to_unit(sig.duty_pct), shape.y0)
+def density(shape: PIModel, xs: Scaling, sig: Signals, y_unit: np.ndarray, rows: np.ndarray,
+            duty_pct: np.ndarray | None = None) -> np.ndarray:
+    """Non-negative play-operator weights over ``shape``'s thresholds fitted to ``y_unit`` on ``rows``
+    (driven by ``duty_pct``, default the recording's duty)."""
+    Y = pi_columns(shape.r, xs.to_unit(sig.duty_pct if duty_pct is None else duty_pct), shape.y0)
     return fit_weights(Y[rows], y_unit[rows], nonnegative=True)[0]
 
 
@@ -921,13 +1027,25 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:
         # duty behind a 48 ms lag, at their true settings, at 7.5 x the noise; now 1.07 x, as the model
         # file does)
         H = np.column_stack([H, at_sensor(np.ones(len(sig)), sig, rest) - 1.0])
+    seat = base.root.seat
+    line = None
+    if seat is not None:
+        # the line below the seat, refitted with the PI on the duty the magnetics see (where the rows
+        # the fit may use reach below the seat; else kept)
+        line = at_sensor(seat_line(inputs(sig, chain)[0], seat[0]), sig, rest)
+        if np.count_nonzero(line[fr & ~shut]) >= MIN_SEAT_ROWS:
+            H = np.column_stack([H, line / ys.half_range])
+        else:
+            line = None
     # the slope's steps held near zero where the rows do not tell them: operators that move together, or
     # only once, on the rows a refit has (the widest of a PI refitted under a warm coil's effective
     # duty, which the training rows kept near their thresholds, were weighted +-4000 against an offset
     # of 72: 5700 L/min on a held-out breath rising 0.4 % higher)
     ridge = STEP_RIDGE * int(fr.sum())
-    w, offset, _ = censored_fit(Y, y_unit, H, fr, shut, float(ys.to_unit(0.0)),
-                                base.slope_rows(sig, chain, fr & ~shut & ~top), top, ys.to_unit(reach), ridge)
+    w, offset, coef = censored_fit(Y, y_unit, H, fr, shut, float(ys.to_unit(0.0)),
+                                   base.slope_rows(sig, chain, fr & ~shut & ~top), top, ys.to_unit(reach), ridge)
+    if line is not None:
+        seat = (seat[0], float(np.clip(coef[-1], 0.0, SEAT_GAIN_MAX * ys.half_range / m.x_scale.half_range)))
     core = PIModel(base.shape.r, w, offset, base.shape.y0)
     model = FittedModel("pi", core, m.x_scale, ys, meta={**m.meta, "refitted": f"under {', '.join(chain) or 'nothing'}"})
-    return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root)
+    return Base(True, model, core, m.x_scale, base.lift_w, parent=base.root, seat=seat)

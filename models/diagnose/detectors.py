@@ -751,6 +751,9 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         rnd = _forward(sel, words, cur, before, sig, folds, margins, noise, rnd, progress)
         _backfit(sel, sig, folds)
         gone = _backward(sel, sig, folds, margins, rnd)
+        if gone is None and dropped:
+            # the final chain, after the backward check dropped a word: the static laws' support read on it
+            gone = _unsupported_after_drop(sel, sig, folds, margins, noise, dropped, rnd)
         if gone is None:
             return sel
         # the spurious word never comes back; the others are tested again on the chain without it
@@ -1339,6 +1342,59 @@ def _within_phase(word: str, params: dict, chain: dict, sig: Signals) -> str | N
     return None
 
 
+def _unsupported(w: Word, params: dict, chain: dict, cur: Base, b: Base, d: Design, theta: np.ndarray,
+                 sig: Signals, folds: Folds, noise: float) -> str | None:
+    """Why the recording does not show the law of ``w`` at ``params`` on top of ``chain`` (:meth:`Word.support`),
+    or ``None``: against the chain's model without it (``cur``, its PI refitted under ``chain``), and, for
+    a static law on a refitted PI, against its own model (``d`` on ``b``, fitted as ``theta``) without it."""
+    d0 = build(cur, sig, chain)
+    before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
+    why = w.support(sig, params, before, noise, chain, after_lpm=d.predict(theta))
+    if why and w.static and cur.refit:
+        # a PI fitted through a dead zone's shut rows bends to reach zero there and predicts no flow
+        # either: what its law's own model (the PI fitted on the rows the law leaves open, its
+        # coefficients) predicts there without the law, no reverse flow, is the model it corrects
+        without = np.clip(build(b, sig, chain).predict(theta), 0.0, None)
+        why = w.support(sig, params, without, noise, chain, extrapolated=True) and why
+    return why
+
+
+def _unsupported_after_drop(sel: Selection, sig: Signals, folds: Folds, margins: Margins, noise: float,
+                            gone: set, rnd: int) -> str | None:
+    """The support of each static law of ``sel`` read again on the final chain, after the backward
+    check dropped ``gone``: a law whose support no longer holds is dropped as the backward check drops
+    a word (traced as :data:`DROPPED`). Returns the word dropped, or ``None``.
+
+    A static law is supported by the rows the chain as it was accepted in shows it at (on the duty the
+    magnetics see, at the valve): a dead zone at the breaths' rest accepted beside a coil heating had
+    each breath's rise open just above it on the heating's effective duty, and without the heating
+    the valve is not seen opening there at all.
+    """
+    for step in sel.steps:
+        w = VOCABULARY[step.word]
+        if not w.static:
+            continue
+        others = {k: p for k, p in sel.chain.items() if k != step.word}
+        cur = unbend(sel.reference, sig, others, folds.train)
+        b = unbend(sel.reference, sig, sel.chain, folds.train)
+        d = build(b, sig, sel.chain)
+        theta = fit_final(d, sig.flow_lpm, folds.train)
+        why = _unsupported(w, sel.chain[step.word], others, cur, b, d, theta, sig, folds, noise)
+        if why is None:
+            continue
+        sel.trace.append(_decision(step, rnd, margins.gain[step.word], margins, DROPPED,
+                                   f"with {', '.join(sorted(gone))} dropped, the recording no longer shows its "
+                                   f"law: {why}"))
+        sel.steps = [s for s in sel.steps if s.word != step.word]
+        sel.chain = others
+        del sel.params[step.word]
+        sel.alternatives.pop(step.word, None)
+        if sel.steps:
+            _backfit(sel, sig, folds, dropped=True)
+        return step.word
+    return None
+
+
 def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float,
             margins: Margins) -> tuple:
     """Polish a passing candidate's parameters and check them: ``(c, chain, physical params)``, or
@@ -1360,15 +1416,7 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
            or _beyond_physics(w, params, chain) or _within_phase(c.word, params, chain, sig))
     if why:
         return NOT_PHYSICAL, why
-    d0 = build(cur, sig, chain)
-    before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
-    why = w.support(sig, params, before, noise, chain, after_lpm=d.predict(theta))
-    if why and w.static and cur.refit:
-        # a PI fitted through a dead zone's shut rows bends to reach zero there and predicts no flow
-        # either: what its law's own model (the PI fitted on the rows the law leaves open, its
-        # coefficients) predicts there without the law, no reverse flow, is the model it corrects
-        without = np.clip(build(b, sig, chain).predict(theta), 0.0, None)
-        why = w.support(sig, params, without, noise, chain, extrapolated=True) and why
+    why = _unsupported(w, params, chain, cur, b, d, theta, sig, folds, noise)
     if why:
         return UNSUPPORTED, why
     why = _beyond_rest(c.word, chain, full, cur, b, sig, folds, margins)

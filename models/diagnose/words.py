@@ -828,6 +828,9 @@ class DeadZone(Word):
         below = int(np.sum(x <= params["cracking_pct"]))
         if below < MIN_END_ROWS:
             return f"only {below} rows below the cracking duty"
+        why = self._unopened_rest(sig, params, chain or {}, x)
+        if why:
+            return why
         # where the law says the valve is shut the measured flow must really stop (zero within the
         # noise) while the model before it predicted flow. Both are read at the sensor, so shut means
         # shut at the sensor: a lag or a delay of the chain carries the flow on past the closing, and
@@ -867,6 +870,35 @@ class DeadZone(Word):
             # the jump at the valve is the law's evidence
             return None
         return "the model before it already predicts no flow below the cracking duty"
+
+    def _unopened_rest(self, sig: Signals, params: dict, chain: dict, x: np.ndarray) -> str | None:
+        """Why a cracking duty that shuts only the rows at the recording's lowest commanded duty (its
+        rest) is not shown by it, or ``None``.
+
+        A valve resting shut at the lowest duty passes no flow there whatever shuts it: its own closing
+        below its identified range does, and a baseline that misfits the rest leaves a residual there
+        that any law closing the valve at the rest takes up. Only the valve opening just above the
+        cracking duty tells a cracking duty from a valve that rests shut: :data:`MIN_END_ROWS` rows
+        reached opening from shut (:meth:`_opening`) within half of :data:`JUMP_BAND_PCT` above it
+        whose flow at the valve (:meth:`_at_valve`) is clear of zero (its 10th percentile above the
+        zero band). A breath rising from its rest crosses that band within a sample or two; a ramp,
+        a sine or a random excitation holding levels there passes through it on many rows.
+        """
+        c = params["cracking_pct"]
+        rest = float(np.min(sig.duty_pct))
+        if np.any(sig.duty_pct[x <= c] > rest + 1e-6):
+            return None
+        q = self._at_valve(sig, chain)
+        zero = self._zero_lpm(sig, q)
+        near = (x > c) & (x <= c + JUMP_BAND_PCT / 2) & self._opening(sig, x, c)
+        if near.sum() >= MIN_END_ROWS and float(np.percentile(q[near], 10)) > zero:
+            return None
+        shown = (f"{int(near.sum())} rows there on its way up from shut" if near.sum() < MIN_END_ROWS else
+                 f"the flow at the valve there is {float(np.percentile(q[near], 10)):.3g} L/min at its 10th "
+                 f"percentile, within the zero band of {zero:.3g} L/min")
+        return (f"the cracking duty {c:.4g} % shuts only the rows at the recording's rest ({rest:.4g} % duty, where "
+                f"a valve rests shut whatever shuts it) and the valve is not seen opening within "
+                f"{JUMP_BAND_PCT / 2:g} % above it ({shown})")
 
     def settle(self, sig, params, chain):
         # a PI fitted on the rows the law leaves open is censored at zero flow, so it closes by
