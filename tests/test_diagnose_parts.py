@@ -627,10 +627,10 @@ def test_a_dead_zone_named_beside_a_word_since_dropped_is_read_again_on_the_fina
 def test_a_cracking_duty_is_placed_again_beside_the_lag_refined_with_it():
     # a cracking duty chosen beside a lag sized before it was known is a held level off; refined once
     # more with the lag in place (the backfit), it is placed again where the flow at the valve leaves
-    # zero, which fits the training rows better
+    # zero, which fits the training rows better: no duty the recording holds or passes lies between it
+    # and the valve's (the breaths rise 1.5 % a sample, one of them right at it)
     from models.diagnose.design import fit_baseline
     from models.diagnose.detectors import _refined_beside, reference
-    from models.diagnose.words import CRACKING_STEP_PCT
 
     crack, tau = 43.0, 0.06
     sig, folds = _valve_shut_below_a_cracking_duty_behind_a_lag(crack, tau)
@@ -638,8 +638,9 @@ def test_a_cracking_duty_is_placed_again_beside_the_lag_refined_with_it():
     chain = {"valve_dynamics": {"tau_s": tau, "phase": 1.0}, "dead_zone": {"cracking_pct": crack + 2.0}}
     refined = _refined_beside("dead_zone", chain, cur, sig, folds, restart=True)
     assert refined is not None
-    shut, opened = sig.duty_pct[sig.duty_pct <= crack], sig.duty_pct[sig.duty_pct > crack]
-    assert shut.max() - CRACKING_STEP_PCT <= refined[0]["cracking_pct"] <= opened.min() + CRACKING_STEP_PCT
+    near = np.abs(sig.duty_pct - crack) < 1e-6
+    duties = sig.duty_pct[~near]
+    assert duties[duties < crack].max() < refined[0]["cracking_pct"] < duties[duties > crack].min()
     # where it is, it stays
     assert _refined_beside("dead_zone", {**chain, "dead_zone": refined[0]}, cur, sig, folds, restart=True) is None
 

@@ -209,6 +209,26 @@ def test_dead_zone_cracking_settles_over_shut_held_levels():
     assert dz.settle(_sig(ramp, closing), {"cracking_pct": 33.0}, {}) == {"cracking_pct": 33.0}
 
 
+def test_dead_zone_cracking_is_set_midway_between_the_training_rows_that_place_it():
+    # breaths rising a few per cent per sample cross the cracking duty between two rows: any cracking
+    # duty between the highest shut training row and the lowest open one fits them alike, and a
+    # holdout row inside that gap is predicted right most often from its middle
+    dz = VOCABULARY["dead_zone"]
+    rng = np.random.default_rng(7)
+    rise = np.concatenate([np.r_[np.full(20, 42.0), 42.0 + np.arange(1, 12) * rng.uniform(1.5, 2.0)]
+                           for _ in range(40)])
+    flow = np.where(rise > 46.7, 50.0 + 2.0 * (rise - 46.7), 0.0) + rng.normal(0, 0.5, len(rise))
+    train = np.arange(len(rise)) % 5 != 0
+    top = float(np.min(rise[train & (rise > 46.7)])) - 1e-6  # the fit's choice at the top of the gap
+    at = dz.midway(_sig(rise, flow), {"cracking_pct": top}, {}, train)["cracking_pct"]
+    shut, opened = rise[train & (rise <= at)], rise[train & (rise > at)]
+    assert np.max(shut) < 46.7 < np.min(opened)
+    assert at == pytest.approx(0.5 * (np.max(shut) + np.min(opened)))
+    # the holdout rows do not place it
+    hold_only = dz.midway(_sig(rise, flow), {"cracking_pct": at}, {}, ~train)["cracking_pct"]
+    assert hold_only != at
+
+
 def test_coil_rise_beyond_copper_is_named_with_a_caveat():
     coil = VOCABULARY["coil_heating"]
     assert coil.caveat({"rise55_k": 30.0, "tau_s": 100.0}) is None

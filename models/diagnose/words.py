@@ -187,6 +187,12 @@ class Word:
         tell apart (``chain``: the named words it joins); ``params`` by default."""
         return params
 
+    def midway(self, sig: Signals, params: dict, chain: dict, rows: np.ndarray) -> dict:
+        """``params`` moved to the middle of the settings that treat the training ``rows`` alike
+        beside ``chain`` (a threshold between two rows), which their error cannot tell apart;
+        ``params`` by default (a law whose error places it)."""
+        return params
+
     def carried(self, sig: Signals, params: dict, chain: dict) -> dict:
         """``params`` moved along with the duty the magnetics see under ``chain`` (its input-side law
         refined or named beside them): where the recording places them on that duty; ``params`` by
@@ -923,6 +929,16 @@ class DeadZone(Word):
                 break
             c = top
         return {**params, "cracking_pct": c + 1e-6} if c != params["cracking_pct"] else params
+
+    def midway(self, sig, params, chain, rows):
+        # any cracking duty between the highest training row it shuts and the lowest it leaves open
+        # shuts the same rows; from the middle a row in that gap is most often shut or open right
+        x = magnetic_duty(sig, chain)
+        c = params["cracking_pct"]
+        below, above = x[rows & (x <= c)], x[rows & (x > c)]
+        if not (len(below) and len(above)):
+            return params
+        return {**params, "cracking_pct": 0.5 * (float(np.max(below)) + float(np.min(above)))}
 
     @staticmethod
     def _opening(sig: Signals, x: np.ndarray, c: float) -> np.ndarray:
