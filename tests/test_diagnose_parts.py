@@ -588,6 +588,27 @@ def test_a_dead_zone_at_the_breaths_rest_needs_the_valve_seen_opening_just_above
     assert found["jumping"] is None
 
 
+def test_a_dead_zone_at_the_rest_is_shown_by_the_rest_rows_against_a_model_file_open_there():
+    # breaths resting at 42 % that rise 1.6 % a sample (no row within half the jump band above the
+    # rest) through a valve shut at the rest that jumps open above it. Against a fitted baseline
+    # misfitting the rest by a little, the valve is not seen opening just above the cracking duty and
+    # the law is refused; held against a model file that passes 20 L/min at the rest, the rest rows
+    # show the law by themselves (the model's claim, not a fit's residual), and it is supported
+    from models.diagnose.signals import Signals
+    from models.diagnose.words import VOCABULARY
+
+    rate, noise = 50.0, 1.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    duty = np.where(t % 3.0 < 1.5, np.minimum(42.0 + 80.0 * (t % 3.0), 70.0), 42.0)
+    assert not np.any((duty > 42.0) & (duty <= 42.5))
+    model = 20.0 + 3.0 * (duty - 42.0)
+    flow = np.where(duty > 42.6, model, 0.0) + np.random.default_rng(6).normal(0.0, noise, t.size)
+    sig, law, dz = Signals(t, duty, flow, None, None, rate), {"cracking_pct": 42.0 + 1e-6}, VOCABULARY["dead_zone"]
+    fitted = dz.support(sig, law, flow + 2.0 * (duty <= 42.0), noise, {})
+    assert fitted is not None and "rest" in fitted
+    assert dz.support(sig, law, model, noise, {}, fixed=True) is None
+
+
 @pytest.mark.slow  # ~3 s
 def test_a_dead_zone_named_beside_a_word_since_dropped_is_read_again_on_the_final_chain():
     # a static law's support is read on the chain it joins: a dead zone at the breaths' rest accepted

@@ -1377,7 +1377,7 @@ def _unsupported(w: Word, params: dict, chain: dict, cur: Base, b: Base, d: Desi
     a static law on a refitted PI, against its own model (``d`` on ``b``, fitted as ``theta``) without it."""
     d0 = build(cur, sig, chain)
     before = d0.predict(fit_final(d0, sig.flow_lpm, folds.train))
-    why = w.support(sig, params, before, noise, chain, after_lpm=d.predict(theta))
+    why = w.support(sig, params, before, noise, chain, after_lpm=d.predict(theta), fixed=not cur.refit)
     if why and w.static and cur.refit:
         # a PI fitted through a dead zone's shut rows bends to reach zero there and predicts no flow
         # either: what its law's own model (the PI fitted on the rows the law leaves open, its

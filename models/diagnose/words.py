@@ -268,12 +268,14 @@ class Word:
 
     def support(self, sig: Signals, params: dict, before_lpm: np.ndarray, noise_lpm: float,
                 chain: dict | None = None, extrapolated: bool = False,
-                after_lpm: np.ndarray | None = None) -> str | None:
+                after_lpm: np.ndarray | None = None, fixed: bool = False) -> str | None:
         """``None``, or why the recording does not show this law where it should (the rows a
         range-end law needs; where a law's correction is largest);
         ``chain``: the named words it joins (their time response delays where the law shows);
         ``extrapolated``: ``before_lpm`` is a model fitted without the rows the law explains, run on
-        past them; ``after_lpm``: the model with the law (its correction is ``after - before``)."""
+        past them; ``after_lpm``: the model with the law (its correction is ``after - before``);
+        ``fixed``: ``before_lpm`` is a model file held fixed, whose prediction is its own claim, not a
+        fit's residual."""
         return None
 
     def beside_memory(self, sig: Signals) -> bool:
@@ -477,7 +479,7 @@ class AsymmetricHysteresis(Word):
     def valve_columns(self, ctx, params):
         return [] if self.is_exact(params) else [ctx.lift_lpm]
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
         if after_lpm is None:
             return None
         # the law widens the descending branch most at high flow: on the rows where its correction is
@@ -662,7 +664,7 @@ class CoilHeating(Word):
                 f"drifts along the duty's thermal history by more than its coil resistance explains (a warmer "
                 f"ambient, a magnet or spring that weakens with heat)")
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
         if sig.coil_temp_c is None:
             return None
         r = params.get("copper_law_ratio", 1.0)
@@ -829,12 +831,14 @@ class DeadZone(Word):
             return None
         return {"cracking_pct": rest + 1e-6}
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
         x = magnetic_duty(sig, chain or {})
         below = int(np.sum(x <= params["cracking_pct"]))
         if below < MIN_END_ROWS:
             return f"only {below} rows below the cracking duty"
-        why = self._unopened_rest(sig, params, chain or {}, x)
+        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
+        why = None if fixed and self._open_at_rest(sig, before_lpm, lim) else \
+            self._unopened_rest(sig, params, chain or {}, x)
         if why:
             return why
         # where the law says the valve is shut the measured flow must really stop (zero within the
@@ -847,7 +851,6 @@ class DeadZone(Word):
         for w, p in (chain or {}).items():
             opened = VOCABULARY[w].dynamics(opened, sig.rate_hz, p)
         shut = opened < 0.02
-        lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
         # either over the shut rows as a whole (a dead zone just above where the model closes by
         # itself), or where the model predicted clear flow (a deep dead zone, most of whose shut
         # rows lie below the model's own closing and say nothing either way) if the valve opens
@@ -876,6 +879,19 @@ class DeadZone(Word):
             # the jump at the valve is the law's evidence
             return None
         return "the model before it already predicts no flow below the cracking duty"
+
+    @staticmethod
+    def _open_at_rest(sig: Signals, before_lpm: np.ndarray, lim: float) -> bool:
+        """Whether the model before the law has the valve open at the recording's rest (its lowest
+        commanded duty; median beyond ``lim``) where it measures shut (within ``lim``). Asked of a model
+        file held fixed: its flow at the rest is the model's claim, not a misfit a fit left there, and
+        the rest rows show a cracking duty by themselves. Breaths resting at 42 % held against a model
+        file that passes 23 L/min there, the valve shut: a dead zone of 99.7 % held-out gain, refused for
+        want of rows just above the rest (the breaths rise 1.6 % in a sample), left a sensor offset of
+        -23 L/min to take it up."""
+        rest = sig.duty_pct <= float(np.min(sig.duty_pct)) + 1e-6
+        return (float(np.median(np.abs(before_lpm[rest]))) > lim
+                and float(np.median(np.abs(sig.flow_lpm[rest]))) <= lim)
 
     def _unopened_rest(self, sig: Signals, params: dict, chain: dict, x: np.ndarray) -> str | None:
         """Why a cracking duty that shuts only the rows at the recording's lowest commanded duty (its
@@ -1068,7 +1084,7 @@ class Saturation(Word):
                 f"{', '.join(chain) or 'no effect'}, explains the recording to within the noise; give the "
                 f"simulation's model file (--model) to test it")
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
         top = before_lpm > params["full_open_lpm"]
         if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
@@ -1146,7 +1162,7 @@ class SensorOffset(Word):
     def sensor_columns(self, ctx, params):
         return [np.ones(len(ctx.sig))]
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None):
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
         # a zero offset is what the sensor reads at zero flow: where the model with the other words
         # has the valve shut (seated at rest, or below a cracking duty) the fitted constant must be
         # of the flow read there, within a factor of two (over the open valve it also takes up the
