@@ -67,6 +67,9 @@ STEP_RIDGE = 1e-7
 #: A flow within this many times the sensor noise of the full-open flow, or above it, is at the
 #: plateau: the flow the valve would pass there is only known to be at least the full-open flow.
 PLATEAU_NOISE = 3.0
+#: Knots of the static curve of the duty beside a model file (:func:`static_curve`), evenly over the
+#: duty's range: a model's misfit of a valve's loading curve is smooth across it.
+STATIC_KNOTS = 8
 #: Growths of the duty's running range closer than this (s) to the last one share one memory epoch
 #: (a breath's 0.2 s rise grows it over many samples).
 EPOCH_S = 5.0
@@ -377,6 +380,23 @@ def memory_epochs(sig: Signals) -> np.ndarray:
     return np.column_stack(cols).astype(float) if cols else np.zeros((len(x), 0))
 
 
+def static_curve(sig: Signals) -> np.ndarray:
+    """Hat columns, shape (N, :data:`STATIC_KNOTS`), of a piecewise-linear curve of the duty over its
+    range (0.5th to 99.5th percentile; flat beyond): a free function of the duty alone.
+
+    Beside a model file it is the model's own misfit of the valve's loading curve, which a drift in
+    time must explain beyond (:attr:`Word.drifts`): breaths on a valve the model file does not quite
+    describe (0.5 L/min low over their top, 0.2 high at rest) are matched by a creep of a small
+    fraction with a time constant longer than the breath, its state following the reversals up and
+    down each breath as a static curve would.
+    """
+    lo, hi = np.percentile(sig.duty_pct, [0.5, 99.5])
+    knots = np.linspace(lo, hi, STATIC_KNOTS)
+    if not hi > lo:
+        return np.ones((len(sig.duty_pct), 1))
+    return np.column_stack([np.interp(sig.duty_pct, knots, e) for e in np.eye(STATIC_KNOTS)])
+
+
 def pi_columns(r: np.ndarray, x_unit: np.ndarray, y0=np.nan) -> np.ndarray:
     """Play operator outputs, Eq. (1), started by Eq. (3) at the first input (``y0`` NaN: at rest there)."""
     Y, _ = play.play_response(r, x_unit, play.init(r, x_unit[0], y0))
@@ -465,7 +485,7 @@ def clip(q: np.ndarray, clip_hi: float | None, floor: bool) -> np.ndarray:
     return np.maximum(q, 0.0) if floor else q
 
 
-def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design:
+def build(base: Base, sig: Signals, chain: dict, memory: bool = False, static: bool = False) -> Design:
     """Columns of baseline + the effects in ``chain`` on the grid of ``sig``.
 
     Parameters
@@ -480,6 +500,10 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
     memory : bool
         A refitted baseline also has a free offset per memory epoch (:func:`memory_epochs`), named
         ``memory``: what a slow drift must explain beyond (:meth:`Word.beside_memory`).
+    static : bool
+        A fixed baseline (a model file) also has a free static curve of the duty
+        (:func:`static_curve`), named ``static``: what a drift in time must explain beyond
+        (:attr:`Word.drifts`).
     """
     n = len(sig.t_s)
     F = base.predict(sig, chain)
@@ -492,6 +516,10 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False) -> Design
         cols += [F, np.ones(n), loop, slope, *epochs.T]
         names += ["gain", "offset", "loop_width", "duty_scale"] + ["memory"] * epochs.shape[1]
         F = np.zeros(n)
+    elif static:
+        curve = static_curve(sig)
+        cols += list(curve.T)
+        names += ["static"] * curve.shape[1]
     valve_ctx = Columns(sig, ref, lift, slope, supply_ref_bar=base.supply_ref_bar,
                         core_input=core_input(base, sig, chain))
     for w, p in chain.items():

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from .calibrate import Margins
-from .design import Base, CVResult, Design, build, cross_validate, fit_final, memory_epochs, solve, unbend
+from .design import STATIC_KNOTS, Base, CVResult, Design, build, cross_validate, fit_final, memory_epochs, solve, unbend
 from .folds import Folds
 from .signals import Signals, noise_lpm
 from .trace import ALTERNATIVE, BELOW_MARGIN, DROPPED, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
@@ -1326,6 +1326,29 @@ def _memory_steps(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: S
             f"growths of the duty's range, the valve's hysteresis memory, not a thermal one")
 
 
+def _static_misfit(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
+                   margins: Margins) -> str | None:
+    """Why a drift in time (:attr:`Word.drifts`) held against a model file explains no more than the
+    model's own misfit of the valve's loading curve, or ``None``: with a free static curve of the duty
+    (:func:`models.diagnose.design.static_curve`) in the model with and without it (``chain``, on
+    ``cur``; ``full``, on ``b``), it must still lower the held-out error by its margin in a fold
+    majority."""
+    w = VOCABULARY[word]
+    if not w.drifts or cur.refit:
+        return None
+    y = sig.flow_lpm
+    c = _candidate(word, full[word], cross_validate(build(b, sig, full, static=True), y, folds),
+                   cross_validate(build(cur, sig, chain, static=True), y, folds), b,
+                   "exact" if w.is_exact(full[word]) else "linearized")
+    need = margins.gain[word]
+    if c.gain > need and c.majority(margins.min_wins):
+        return None
+    return (f"with a free static curve of the duty beside the model file ({STATIC_KNOTS} knots over its range) "
+            f"its held-out error changes by {-100 * c.gain:+.2f} % (needs below -{100 * need:.2f} %), lower in "
+            f"{c.wins}/{len(c.test_after)} folds: the model's misfit of the valve's loading curve, a function of "
+            f"the duty alone, not a drift in time")
+
+
 def _beyond_rest(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
                  margins: Margins) -> str | None:
     """Why a law explains no more than its setting at the valve's rest (:meth:`Word.at_rest`), or
@@ -1453,7 +1476,8 @@ def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, no
         # baseline's misfit at the rest, which a weaker word may be taking up too (:func:`_masking`: a
         # creep beside a heating oversized on breaths resting below the seat)
         return UNSUPPORTED, why
-    why = _memory_steps(c.word, chain, full, cur, b, sig, folds, margins)
+    why = (_memory_steps(c.word, chain, full, cur, b, sig, folds, margins)
+           or _static_misfit(c.word, chain, full, cur, b, sig, folds, margins))
     if why:
         return NOT_PHYSICAL, why
     c.params = params

@@ -110,6 +110,10 @@ class Word:
         Its valve columns move the plunger before the no-reverse-flow floor: they open a valve the
         reference has shut (a PI fitted on the recording, running on below zero flow), but not one
         measured shut (:func:`models.diagnose.design.build`).
+    drifts : bool
+        Its law is a drift in time (a creep after each reversal, a coil warming): held against a
+        model file it must explain the recording beyond a free static curve of the duty, the model's
+        own misfit of the valve's loading curve (:func:`models.diagnose.design.static_curve`).
     """
 
     word: str
@@ -127,6 +131,7 @@ class Word:
     settled_ends: tuple = ()
     shifts_level: bool = False
     before_floor: bool = False
+    drifts: bool = False
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
@@ -1228,7 +1233,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
          "ambient_c": "deg C"},
         {"rise55_k": (0.05, LAW_RISE55_K), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
         joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty",
-        ratio_of={"rise55_k": "tau_s"}, settled_ends=("floor_pct",)),
+        ratio_of={"rise55_k": "tau_s"}, settled_ends=("floor_pct",), drifts=True),
     SupplyPressure(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
         "to first order, the PI refitted with it",
@@ -1255,7 +1260,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
         "reversal-to-reversal step, first order with tau",
         {"amplitude": "fraction of the last reversal step", "tau_s": "s"},
         {"amplitude": (0.003, 1.0), "tau_s": (0.3, 1000.0)}, joint_with_pi=True, unresolved=("tau_s", "high"),
-        whole_plot=True, before_floor=True),
+        whole_plot=True, before_floor=True, drifts=True),
     SensorOffset(
         "sensor_offset", "constant zero offset of the flow sensor",
         {"offset_lpm": "L/min"}, {"offset_lpm": (-30.0, 30.0)}, shifts_level=True),
