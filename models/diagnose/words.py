@@ -111,9 +111,12 @@ class Word:
         reference has shut (a PI fitted on the recording, running on below zero flow), but not one
         measured shut (:func:`models.diagnose.design.build`).
     drifts : bool
-        Its law is a drift in time (a creep after each reversal, a coil warming): held against a
-        model file it must explain the recording beyond a free static curve of the duty, the model's
-        own misfit of the valve's loading curve (:func:`models.diagnose.design.static_curve`).
+        Its law is a drift in time that follows the duty's reversals (a creep): held against a model
+        file it must explain the recording beyond a free static curve of the duty, the model's own
+        misfit of the valve's loading curve (:func:`models.diagnose.design.static_curve`). Not a coil
+        warming: its drift is a gain over the whole duty range, which the curve takes up in part (a coil
+        24 K warm beside a clip at 125 L/min against the model file, held-out 1470, was refused by it
+        while the clip was not yet named, and dropped).
     """
 
     word: str
@@ -1233,7 +1236,7 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
          "ambient_c": "deg C"},
         {"rise55_k": (0.05, LAW_RISE55_K), "tau_s": (10.0, 1e4), "copper_law_ratio": (0.3, 3.0)},
         joint_with_pi=True, unresolved=("tau_s", "low"), whole_plot=True, input_side="duty",
-        ratio_of={"rise55_k": "tau_s"}, settled_ends=("floor_pct",), drifts=True),
+        ratio_of={"rise55_k": "tau_s"}, settled_ends=("floor_pct",)),
     SupplyPressure(
         "supply_pressure", "flow x ((p + 1.013) / (p_mean + 1.013))^exponent from the supply_bar column, "
         "to first order, the PI refitted with it",
