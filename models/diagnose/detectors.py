@@ -38,7 +38,8 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from .calibrate import Margins
-from .design import STATIC_KNOTS, Base, CVResult, Design, build, cross_validate, fit_final, memory_epochs, solve, unbend
+from .design import (STATIC_KNOTS, Base, CVResult, Design, build, cross_validate, fit_final, has_dynamics,
+                     memory_epochs, solve, unbend)
 from .folds import Folds
 from .signals import Signals, noise_lpm
 from .trace import ALTERNATIVE, BELOW_MARGIN, DROPPED, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
@@ -1257,6 +1258,8 @@ def _midway(word: str, chain: dict, params: dict, base: Base, sig: Signals, fold
     sample later), and there it stays where the fit put it. The search itself keeps the setting
     the rows place (a dead zone's support is read on the rows just above its last shut row).
     """
+    if has_dynamics(chain):
+        return params
     w = VOCABULARY[word]
     mid = w.midway(sig, params, chain, folds.train)
     if mid == params:
