@@ -229,6 +229,28 @@ def test_dead_zone_cracking_is_set_midway_between_the_training_rows_that_place_i
     assert hold_only != at
 
 
+def test_behind_a_time_response_the_cracking_duty_stays_where_the_fit_put_it():
+    # behind a lag the rows after each crossing place the cracking duty (the lagged flow of the row
+    # opened one sample later); the midway setting, which the rows at the valve cannot tell from the
+    # fit's, moved those lagged openings on holdout rows. Without the lag it is moved to the middle
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.detectors import _midway
+    from models.diagnose.folds import make_folds
+
+    rng = np.random.default_rng(7)
+    rise = np.concatenate([np.r_[np.full(40, 42.0), 42.0 + np.arange(1, 30) * rng.uniform(1.0, 1.5)]
+                           for _ in range(60)])
+    flow = np.where(rise > 46.7, 50.0 + 2.0 * (rise - 46.7), 0.0) + rng.normal(0, 0.5, len(rise))
+    sig = _sig(rise, flow, rate=50.0)
+    folds = make_folds(sig.t_s)
+    base = fit_baseline(sig, folds)
+    x = sig.duty_pct[folds.train]
+    top = float(np.min(x[x > 46.7])) - 1e-6  # the fit's choice at the top of the gap
+    lag = {"valve_dynamics": {"tau_s": 0.04, "phase": 1.0}}
+    assert _midway("dead_zone", lag, {"cracking_pct": top}, base, sig, folds) == {"cracking_pct": top}
+    assert _midway("dead_zone", {}, {"cracking_pct": top}, base, sig, folds)["cracking_pct"] < top
+
+
 def test_coil_rise_beyond_copper_is_named_with_a_caveat():
     coil = VOCABULARY["coil_heating"]
     assert coil.caveat({"rise55_k": 30.0, "tau_s": 100.0}) is None

@@ -152,7 +152,10 @@ def write_report(diag: Diagnosis, folder, source: str = "") -> Path:
              f"Holdout: {100 * m['validation']['holdout_fraction']:.0f} % of the rows in "
              f"{m['validation']['blocks'] // 4} blocks of {m['validation']['block_s']:.1f} s spread over the recording, "
              f"never used to fit anything; decisions on {m['validation']['cv_folds']} blocked cross-validation folds "
-             "of the other rows.", "", "## Findings", ""]
+             "of the other rows." + (f" {m['validation']['holdout_undecided_rows']} holdout rows between the training "
+                                     "rows that place a cracking duty are not scored (any setting between them fits "
+                                     "the training rows alike)." if m['validation'].get('holdout_undecided_rows') else ""),
+             "", "## Findings", ""]
     if not diag.findings:
         lines += ["None: no effect lowered the held-out error by its calibrated margin.", ""]
     for i, f in enumerate(diag.findings, start=1):

@@ -201,6 +201,12 @@ class Word:
         ``params`` by default (a law whose error places it)."""
         return params
 
+    def undecided(self, sig: Signals, params: dict, chain: dict, rows: np.ndarray, at: Signals) -> np.ndarray | None:
+        """Rows of the signals ``at`` that the settings the training ``rows`` of ``sig`` cannot tell
+        apart beside ``chain`` (:meth:`midway`) treat differently: neither evidence for the law nor
+        against it. ``None`` by default (a law whose error places it)."""
+        return None
+
     def carried(self, sig: Signals, params: dict, chain: dict) -> dict:
         """``params`` moved along with the duty the magnetics see under ``chain`` (its input-side law
         refined or named beside them): where the recording places them on that duty; ``params`` by
@@ -955,14 +961,32 @@ class DeadZone(Word):
         return {**params, "cracking_pct": c + 1e-6} if c != params["cracking_pct"] else params
 
     def midway(self, sig, params, chain, rows):
-        # any cracking duty between the highest training row it shuts and the lowest it leaves open
-        # shuts the same rows; from the middle a row in that gap is most often shut or open right
+        # from the middle of the gap a row in it is most often shut or open right
+        gap = self._gap(sig, params, chain, rows)
+        return params if gap is None else {**params, "cracking_pct": 0.5 * (gap[0] + gap[1])}
+
+    def undecided(self, sig, params, chain, rows, at):
+        # a holdout row in the gap is shut or open as the setting within it happens to fall (a cracking
+        # duty at 43.99985 % moved to the gap's middle, 44.0169 %, shut a holdout row at 44.017 % that
+        # passed 35 L/min: a 35 L/min error on one row of 3750 turned the holdout against a dead zone
+        # of 72 % held-out gain)
+        gap = self._gap(sig, params, chain, rows)
+        if gap is None:
+            return None
+        x = magnetic_duty(at, chain)
+        return (x > gap[0]) & (x < gap[1])
+
+    @staticmethod
+    def _gap(sig: Signals, params: dict, chain: dict, rows: np.ndarray) -> tuple | None:
+        """``(lo, hi)``: the highest duty of the training ``rows`` the cracking duty shuts and the
+        lowest it leaves open (on the duty the magnetics see beside ``chain``); any cracking duty
+        between them shuts the same training rows. ``None`` when it shuts all or none of them."""
         x = magnetic_duty(sig, chain)
         c = params["cracking_pct"]
         below, above = x[rows & (x <= c)], x[rows & (x > c)]
         if not (len(below) and len(above)):
-            return params
-        return {**params, "cracking_pct": 0.5 * (float(np.max(below)) + float(np.min(above)))}
+            return None
+        return float(np.max(below)), float(np.min(above))
 
     @staticmethod
     def _opening(sig: Signals, x: np.ndarray, c: float) -> np.ndarray:
