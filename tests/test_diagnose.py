@@ -482,6 +482,21 @@ def test_a_clip_a_refitted_pi_flattens_into_is_said_so():
     assert "saturation" in named or "flattens at 128" in d.model["not_identifiable"]["saturation"]
 
 
+@pytest.mark.slow  # ~60 s
+@pytest.mark.parametrize("creep, full_open, seed", [(0.12, 140.0, 3701), (0.2, 128.0, 3702)])
+def test_a_creep_beside_a_clip_on_the_paper_sweep_is_named_and_no_heating(creep, full_open, seed):
+    # the paper's sweep reverses at its top under the clip: the creep after that reversal rises on the
+    # plateau and holds the flow there after the valve without it has left. Both are named, the creep at
+    # its size, and no coil warming from the first second takes up the creep's drift
+    import diagnose_gross as G
+
+    d = diagnose_response(G.record(G.Probe("plant", (("creep", creep), ("saturation", full_open)), "paper",
+                                           seed, 0.5)))
+    named = {f.effect: f.params for f in d.findings if f.alternative_to is None}
+    assert set(named) == {"creep", "saturation"}
+    assert named["creep"]["amplitude"] == pytest.approx(creep, rel=0.3)
+
+
 def test_a_staircase_at_the_valves_memory_epochs_is_not_read_as_heat():
     # plant_sim's valve holds the highest breath so far in its widest operators: its flow steps at
     # each new highest breath (by 1.2 L/min, then 0.23, on this seed), which the 50-operator PI gets

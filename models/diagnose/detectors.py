@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from .calibrate import Margins
-from .design import (STATIC_KNOTS, Base, CVResult, Design, build, cross_validate, fit_final, has_dynamics,
+from .design import (STATIC_KNOTS, Base, CVResult, Design, build, censored, cross_validate, fit_final, has_dynamics,
                      memory_epochs, solve, unbend)
 from .folds import Folds
 from .signals import Signals, noise_lpm
@@ -572,6 +572,7 @@ def train_sse(d: Design, y: np.ndarray, rows: np.ndarray) -> float:
 
 def train_residual(d: Design, y: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """Residual on ``rows`` of the least-squares fit on those rows."""
+    d = censored(d, y, rows)
     fr = rows & d.fit_ok
     p = d.X.shape[1]
     if p:
