@@ -254,6 +254,12 @@ class Word:
         of :meth:`dynamics`; noisier than its input)."""
         return y
 
+    def bracket(self, params: dict, rate_hz: float) -> list:
+        """The settings of the law between whose responses a sampled reading of it falls (a delay
+        between whole samples interpolates the two whole-sample delays around it); ``[params]``
+        when it has none."""
+        return [params]
+
     def pieces(self, key: str, lo: float, hi: float, rate_hz: float) -> list:
         """The intervals of ``[lo, hi]`` of the screened parameter ``key`` on which the training error
         is smooth, each searched on its own by the refinement (:func:`models.diagnose.detectors.refine`)."""
@@ -419,6 +425,14 @@ def _moves_core_input(chain: dict) -> bool:
     """Whether a word of ``chain`` moves the duty the magnetics see away from the commanded duty (an
     input-side exact law on the duty: a warm coil's)."""
     return any(VOCABULARY[w].input_side == "duty" and VOCABULARY[w].is_exact(p) for w, p in chain.items())
+
+
+def bracketing(chain: dict, rate_hz: float) -> list:
+    """``chain`` with each law at each setting of :meth:`Word.bracket`: every combination."""
+    out = [{}]
+    for w, p in chain.items():
+        out = [{**c, w: q} for c in out for q in VOCABULARY[w].bracket(p, rate_hz)]
+    return out
 
 
 def magnetic_duty(sig: Signals, chain: dict) -> np.ndarray:
@@ -780,6 +794,12 @@ class TransportDelay(Word):
     def undo(self, y, rate_hz, params):
         return fx.advanced(y, rate_hz, params["delay_s"])
 
+    def bracket(self, params, rate_hz):
+        shift = params["delay_s"] * rate_hz
+        if shift == np.floor(shift):
+            return [params]
+        return [{**params, "delay_s": float(np.floor(shift) / rate_hz)}, {**params, "delay_s": float(np.ceil(shift) / rate_hz)}]
+
     def pieces(self, key, lo, hi, rate_hz):
         # a delay between whole samples interpolates its neighbours, smoothing the flow most at half a
         # sample: the error has a kink at each whole sample, where a scalar search stops (17.7 ms beside
@@ -824,18 +844,24 @@ class DeadZone(Word):
         # into shut below it and open above it (over the plausible range). A grid a few tenths of a
         # per cent apart misses a cracking duty's narrow minimum, and a breath's rise crosses the gap
         # within a sample or two
-        q = self._at_valve(sig, chain)
         lo_hi = self.plausible["cracking_pct"]
         x = magnetic_duty(sig, chain)
-        rows = x <= lo_hi[1]
+        opened, decided = self._opened(sig, chain)
+        rows = (x <= lo_hi[1]) & decided
         order = np.argsort(x[rows], kind="stable")
         xs = x[rows][order]
-        opened = (q[rows] > self._zero_lpm(sig, q))[order]
+        opened = opened[rows][order]
         # misplaced rows with the threshold after row i: open rows at or below it, shut rows above it
         wrong = np.cumsum(opened) + (np.sum(~opened) - np.cumsum(~opened))
         i = int(np.argmin(wrong))
         c = float(xs[i]) + 1e-6
-        return [{"cracking_pct": c}] if lo_hi[0] <= c < lo_hi[1] and i + 1 < len(xs) else []
+        if not (lo_hi[0] <= c < lo_hi[1] and i + 1 < len(xs)):
+            return []
+        # and the top of the gap up to the next row read, when rows left undecided lie in it (the rows
+        # read place the cracking duty anywhere between)
+        top = float(xs[i + 1]) - 1e-6
+        between = np.any((x > c) & (x < top) & ~decided)
+        return [{"cracking_pct": c}] + ([{"cracking_pct": top}] if between and top < lo_hi[1] else [])
 
     def flow_gain(self, sig, params, duty_pct):
         # the plunger lifts off its seat once the magnetic force beats the spring's preload: the
@@ -1025,6 +1051,17 @@ class DeadZone(Word):
         for w, p in reversed(list(chain.items())):
             q = VOCABULARY[w].undo(q, sig.rate_hz, p)
         return q
+
+    def _opened(self, sig: Signals, chain: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The rows open at the valve, and the rows that reading decides: read back through a time
+        response between two samples (:meth:`Word.bracket`: a delay of a fraction of a sample
+        interpolates them), a row one sample reads shut and the other open is undecided (behind a
+        26 ms delay at 50 Hz, a dozen rows at the jump read 12 L/min at the valve for 0 and 40, and
+        placed the cracking duty among them, 0.02 % low)."""
+        readings = [self._at_valve(sig, c) for c in bracketing(chain, sig.rate_hz)]
+        zero = self._zero_lpm(sig, readings[0])
+        opened = [q > zero for q in readings]
+        return opened[0], np.logical_and.reduce([o == opened[0] for o in opened])
 
     @staticmethod
     def _zero_lpm(sig: Signals, q: np.ndarray) -> float:
