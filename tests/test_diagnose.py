@@ -623,6 +623,25 @@ def test_a_lag_beside_a_heating_on_a_chirp_is_no_delay():
     assert named["valve_dynamics"].params["tau_s"] == pytest.approx(0.057, rel=0.3)
 
 
+@pytest.mark.slow  # ~60 s each
+@pytest.mark.parametrize("probe", [
+    # a cracking duty placed before the delay was known (where the late openings and closings average
+    # out) and then held: a lag's smoothing took up its misplaced jump better than the delay, or a coil
+    # warm from the start moved it onto the valve's
+    ("chirp", (("transport_delay", 0.03), ("dead_zone", 45.0)), 9701, 1.0),
+    # a 6 ms lag with the command held fits as well as a 21 ms delay: it smooths nothing the samples show
+    ("mixed", (("transport_delay", 0.021), ("asymmetric_hysteresis", 8.0)), 9706, 0.3),
+])
+def test_a_delay_is_named_as_a_delay_beside_a_static_law_or_a_tie(probe):
+    G = pytest.importorskip("diagnose_gross")
+    exc, effects, seed, noise = probe
+    p = G.Probe("foreign", effects, exc, seed, noise)
+    d = diagnose_response(G.record(p))
+    assert G.judge(p, d) == []
+    named = {f.effect for f in d.findings if f.alternative_to is None}
+    assert "valve_dynamics" not in named and "coil_heating" not in named
+
+
 def test_a_lag_alone_is_not_shared_with_a_delay():
     # a 60 ms lag on the foreign staircase: the delay tested beside it with the lateness shared explains
     # nothing more (a lag's step response is no delayed one), and is not named

@@ -149,6 +149,34 @@ def test_dead_zone_rows_are_read_at_the_sensor_behind_a_delay():
     assert dz.support(_sig(duty, goes_on), {"cracking_pct": 42.0}, before, 0.5, chain) is not None
 
 
+def test_behind_a_delay_between_whole_samples_the_cracking_duty_is_placed_within_the_rows_read():
+    # a valve cracking at 45.3 % behind a 26.3 ms delay, sampled at 50 Hz: read back at the valve, a row
+    # at each crossing falls between a shut and an open sample, and its interpolated flow (a share of
+    # the jump) reads open below the cracking duty. Those rows are left undecided, and the placement
+    # offers both ends of the gap the rows read leave, the cracking duty between them
+    dz, rate, fine = VOCABULARY["dead_zone"], 50.0, 1000.0
+    t = np.arange(int(600 * fine)) / fine
+    duty = 45.0 + 8.0 * np.sin(2 * np.pi * (0.05 + 0.004 * t) * t)  # a chirp through the cracking duty
+    valve = lambda d: np.where(d > 45.3, 20.0 + 4.0 * (d - 45.3), 0.0)  # noqa: E731
+    late = int(round(0.0263 * fine))
+    flow = valve(np.concatenate([np.full(late, duty[0]), duty[:-late]]))
+    every = int(fine / rate)
+    rng = np.random.default_rng(5)
+    sig = _sig(duty[::every], flow[::every] + rng.normal(0, 0.5, len(t[::every])), rate=rate)
+    leads = [p["cracking_pct"] for p in dz.placed(sig, {"transport_delay": {"delay_s": 0.0263}})]
+    assert min(leads) <= 45.3 <= max(leads)
+    assert max(leads) - min(leads) < 0.2
+
+
+def test_a_delays_error_is_searched_between_whole_samples():
+    # a delay between whole samples interpolates its neighbours: the training error has a kink at each
+    # whole sample, and each piece between them is searched on its own
+    delay = VOCABULARY["transport_delay"]
+    assert delay.pieces("delay_s", 0.011, 0.028, 50.0) == [(0.011, 0.02), (0.02, 0.028)]
+    assert delay.pieces("delay_s", 0.021, 0.039, 50.0) == [(0.021, 0.039)]
+    assert VOCABULARY["valve_dynamics"].pieces("tau_s", 0.011, 0.028, 50.0) == [(0.011, 0.028)]
+
+
 def test_dead_zone_jump_between_two_samples_of_a_breath_shows_the_law():
     # breaths rising some 2 % per sample through a 42 % cracking duty, 30 ms late: the jump falls
     # between two samples of each rise, where a PI fitted without the law puts a steep opening of
