@@ -1203,10 +1203,13 @@ def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur:
 
     (a, sse_a), (b, sse_b) = sorted(((f, held_out_sse(f[1])) for f in (accepted, alt)), key=lambda f: f[1])
     lag = a[1].get("valve_dynamics")
-    if lag is not None and lag["tau_s"] * sig.rate_hz < UNSEEN_LAG_SAMPLES and sse_b <= (1.0 + AMBIGUOUS) * sse_a:
-        # a lag this fast smooths nothing the samples show: its lateness is its sampling phase, a
-        # share of the previous sample's command, which is a delay's interpolation (a 21 ms delay
-        # read as a 6 ms lag with the command held); the two fit alike, and the delay is named
+    if (lag is not None and lag["tau_s"] * sig.rate_hz < UNSEEN_LAG_SAMPLES
+            and VOCABULARY["valve_dynamics"].lateness_s(lag, sig.rate_hz) * sig.rate_hz >= 1.0
+            and sse_b <= (1.0 + AMBIGUOUS) * sse_a):
+        # a lag this fast smooths nothing the samples show, and one a whole sample late or more is
+        # late by its sampling phase, the previous sample's command held: a delay (a 21 ms delay read
+        # as a 6 ms lag with the command held); the two fit alike, and the delay is named. (A fast
+        # lag answering within its sample, late by a fraction of one, stays a lag.)
         return b, a
     return a, b
 
