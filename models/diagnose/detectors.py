@@ -60,9 +60,6 @@ CHANGED = 0.002
 #: the named one's, the recording cannot separate them and both are reported, each as the other's
 #: alternative.
 AMBIGUOUS = 0.02
-#: A lag whose time constant is below this many samples of the working grid smooths nothing the
-#: samples show: tied with a delay, the delay is named (:func:`_lag_or_delay`).
-UNSEEN_LAG_SAMPLES = 0.5
 #: A held-out misfit (RMS) above this many times the sensor noise, after the strongest effect the
 #: screens found, is gross: every word's exact law is refined whatever its linearized screen found.
 GROSS = 3.0
@@ -1201,17 +1198,7 @@ def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur:
     def held_out_sse(named: dict) -> float:
         return float(cross_validate(build(unbend(cur, sig, named, folds.train), sig, named), y, folds).test.sum())
 
-    (a, sse_a), (b, sse_b) = sorted(((f, held_out_sse(f[1])) for f in (accepted, alt)), key=lambda f: f[1])
-    lag = a[1].get("valve_dynamics")
-    if (lag is not None and lag["tau_s"] * sig.rate_hz < UNSEEN_LAG_SAMPLES
-            and VOCABULARY["valve_dynamics"].lateness_s(lag, sig.rate_hz) * sig.rate_hz >= 1.0
-            and sse_b <= (1.0 + AMBIGUOUS) * sse_a):
-        # a lag this fast smooths nothing the samples show, and one a whole sample late or more is
-        # late by its sampling phase, the previous sample's command held: a delay (a 21 ms delay read
-        # as a 6 ms lag with the command held); the two fit alike, and the delay is named. (A fast
-        # lag answering within its sample, late by a fraction of one, stays a lag.)
-        return b, a
-    return a, b
+    return (alt, accepted) if held_out_sse(alt[1]) < held_out_sse(accepted[1]) else (accepted, alt)
 
 
 def _beside(found: tuple, cur: Base, sig: Signals, folds: Folds, noise: float, margins: Margins) -> tuple:
