@@ -1213,6 +1213,8 @@ def _beside(found: tuple, cur: Base, sig: Signals, folds: Folds, noise: float, m
     """
     c, full, _ = found
     chain = {w: p for w, p in full.items() if w != c.word}
+    if not chain:
+        return found
     moved, params = dict(chain), full[c.word]
     # in turn with the time response itself refined beside them as moved (its screen sized it on their
     # old places), until neither moves: a delay sized beside a cracking duty placed 1.1 % low stopped
