@@ -778,6 +778,8 @@ def select_effects(base: Base, sig: Signals, folds: Folds, margins: Margins, pro
         if gone is None:
             gone = _static_after_search(sel, sig, folds, margins, rnd)
         if gone is None:
+            gone = _level_after_search(sel, sig, folds, margins, noise, rnd)
+        if gone is None:
             for w, p in list(sel.chain.items()):
                 sel.chain[w] = _midway(w, {k: v for k, v in sel.chain.items() if k != w}, p, sel.reference, sig,
                                        folds)
@@ -1022,11 +1024,12 @@ def _joint_restart(sel: Selection, sig: Signals, folds: Folds) -> bool:
 
 
 def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Folds,
-                   rows: np.ndarray | None = None, held: tuple = ()) -> dict:
+                   rows: np.ndarray | None = None, held: tuple = (), static: bool = False) -> dict:
     """``chain`` with the exact-law parameters of ``words`` (:meth:`Word.bounds`; but those ``held``,
     ``(word, parameter)`` pairs) refined together by bounded nonlinear least squares in log scale on
     ``rows`` (by default a subsample of the training rows, :func:`_subsample`), the PI refitted from
-    ``root`` at each evaluation."""
+    ``root`` at each evaluation; ``static``: beside a model file's free static curve of the duty
+    (:func:`models.diagnose.design.static_curve`)."""
     rows = _subsample(folds.train) if rows is None else rows
     keys, lo, hi = [], [], []
     for w in words:
@@ -1045,7 +1048,9 @@ def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Fo
         return out
 
     def resid(x):
-        return train_residual(design(words[0], root, sig, at(x), folds, rows)[0], sig.flow_lpm, rows)
+        d = (build(root, sig, carried(words[0], sig, at(x)), static=True) if static
+             else design(words[0], root, sig, at(x), folds, rows)[0])
+        return train_residual(d, sig.flow_lpm, rows)
 
     res = least_squares(resid, x0, bounds=(lo, hi), diff_step=REFINE_DIFF_STEP, max_nfev=REFINE_EVALS, xtol=1e-3,
                         ftol=1e-6)
@@ -1538,6 +1543,74 @@ def _static_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Ma
         if sel.steps:
             _backfit(sel, sig, folds, dropped=True)
         return step.word
+    return None
+
+
+def _level_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Margins, noise: float,
+                        rnd: int) -> str | None:
+    """A level word (:attr:`Word.shifts_level`: a sensor offset) held against a model file beside an
+    exact law on the valve's input (a coil's effective duty, an asymmetry's widened thresholds), on a
+    recording with no rows that read its level by themselves (:meth:`Word.pinned`: a shut valve's
+    zero): said to be not identifiable when the constant it reads trades against that law's
+    parameters by more than the sensor noise. Named, it is dropped as the backward check drops a word
+    (traced as :data:`DROPPED`); returns the word dropped, or ``None``.
+
+    The constant is read twice: with the input-side laws refined jointly with it (what the search
+    does), and with them placed by their own signature, beside a free static curve of the duty
+    (:func:`models.diagnose.design.static_curve`: the model file's misfit of the valve's loading
+    curve, and any constant), the constant then fitted beside them. A valve the model file describes
+    reads the same constant both ways (plant_sim's, a 30 K coil with a -1.6 L/min offset on breaths:
+    -1.61 and -1.61). On a valve it does not quite describe (a foreign valve's loop held against a PI
+    fitted on its staircase: 0.8 L/min low over the breaths' tops, 0.5 high at rest), the heating's
+    rise and time constant or the asymmetry's widening take up that misfit together with the constant:
+    a coil 24 K warm with an offset of +2.0 L/min read the constant +0.5 jointly, +1.6 so placed, and
+    the same coil with no offset at all -1.5 and -0.5 (named, a false offset); its time signature, a
+    constant from the first row where the heating starts cold, is traded for the model file's misfit.
+    """
+    ref = sel.reference
+    if ref.refit:
+        return None
+    for word, w in VOCABULARY.items():
+        if not w.shifts_level or word in sel.not_identifiable:
+            continue
+        others = {k: p for k, p in sel.chain.items() if k != word}
+        inside = [k for k, p in others.items() if VOCABULARY[k].input_side and VOCABULARY[k].is_exact(p)
+                  and any(q in p for q in VOCABULARY[k].bounds(sig, ref))]
+        if not inside:
+            continue
+        y = sig.flow_lpm
+
+        def level(chain: dict) -> tuple:
+            d = build(ref, sig, carried(inside[0], sig, {**chain, word: {}}))
+            theta = fit_final(d, y, folds.train)
+            fitted = d.predict(theta)
+            coef = _coef(word, d, theta)
+            return coef, fitted - coef * d.X[:, d.names.index(word)], fitted
+
+        joint = refine_jointly(inside, {**others, word: sel.chain.get(word, {})}, ref, sig, folds)
+        c_joint, before, after = level({k: p for k, p in joint.items() if k != word})
+        if w.pinned(sig, before, after):
+            continue
+        c_own = level(refine_jointly(inside, others, ref, sig, folds, static=True))[0]
+        if abs(c_joint - c_own) <= noise:
+            continue
+        why = (f"not identifiable beside {', '.join(inside)} against this model file: no rows read its level by "
+               f"themselves (a shut valve's zero), and it reads {c_joint:.3g} {next(iter(w.units.values()))} "
+               f"with {', '.join(inside)} refined jointly with it, {c_own:.3g} with them placed by their own "
+               f"signature beside a free static curve of the duty (the model file's misfit of the valve's "
+               f"loading curve): it trades against their parameters by more than the noise ({noise:.3g})")
+        sel.not_identifiable[word] = why
+        if word not in sel.chain:
+            continue
+        step = next(s for s in sel.steps if s.word == word)
+        sel.trace.append(_decision(step, rnd, margins.gain[word], margins, DROPPED, why))
+        sel.steps = [s for s in sel.steps if s.word != word]
+        sel.chain = others
+        del sel.params[word]
+        sel.alternatives.pop(word, None)
+        if sel.steps:
+            _backfit(sel, sig, folds, dropped=True)
+        return word
     return None
 
 

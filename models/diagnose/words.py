@@ -303,6 +303,12 @@ class Word:
         fit's residual."""
         return None
 
+    def pinned(self, sig: Signals, before_lpm: np.ndarray, after_lpm: np.ndarray) -> bool:
+        """Whether rows of the recording read the law's level by themselves (``before_lpm``, ``after_lpm``:
+        the fitted chain without and with it), whatever the other words of the chain make of the rest: a
+        sensor's zero read where the valve is shut. ``False`` by default."""
+        return False
+
     def beside_memory(self, sig: Signals) -> bool:
         """Whether the word's law is a slow drift along the recording that must explain it beyond a
         free offset per memory epoch (:func:`models.diagnose.design.memory_epochs`): the steps a
@@ -1261,6 +1267,9 @@ class SensorOffset(Word):
             return (f"the sensor reads {read_lpm:.3g} L/min where the valve is shut, not of the fitted offset "
                     f"{fit_lpm:.3g} L/min: the constant takes up a misfit of the open valve")
         return None
+
+    def pinned(self, sig, before_lpm, after_lpm):
+        return self._at_zero_flow(sig, before_lpm, after_lpm) is not None
 
     def physical(self, params, coef, sig, base, fitted_lpm=None):
         out = {"offset_lpm": float(coef)}
