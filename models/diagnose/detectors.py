@@ -260,21 +260,28 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
 
 def _level_refined(word: str, chain: dict, cand: Candidate, before: CVResult, base: Base, sig: Signals,
                    folds: Folds) -> Candidate | None:
-    """The test of a word that moves the flow's level (:attr:`Word.shifts_level`) with the chain's
-    exact input-side laws refined jointly with it, when that fits the training rows better than the
-    screen beside them as named; ``None`` otherwise.
+    """The test of a word that moves the flow's level (:attr:`Word.shifts_level`) or drifts along the
+    recording (:attr:`Word.drifts`) with the chain's exact input-side laws refined jointly with it (and
+    its own screened time constant, :func:`_screened_range`), when that fits the training rows better
+    than the screen beside them as named; ``None`` otherwise.
 
     Named first, a heating takes up a sensor offset the recording also holds in its size and time
     constant (a coil 23.5 K warm with a 2.3 L/min offset, against its model file: 27 K and 272 s
     for 150 s), and the offset screened beside it so sized then gains a few per cent, not the
-    third of the error it takes with the heating refined jointly with it.
+    third of the error it takes with the heating refined jointly with it. A creep's drift after the
+    reversals, the flow moving on slowly the way it went as a coil's warming moves it, is taken up
+    alike: on a foreign chirp (a coil 22 K warm, a creep of 0.1 relaxing over 12 s) the heating named
+    first read 18.5 K and 256 s, and the creep screened beside it gained 8.8 %, under a tenth of the
+    heating's gain; with the heating and the creep's time constant refined jointly with it, 22 K and
+    147 s, a creep of 0.097 over 11.8 s.
     """
     w = VOCABULARY[word]
     inside = [k for k, p in chain.items() if VOCABULARY[k].input_side and VOCABULARY[k].is_exact(p)
               and any(q in p for q in VOCABULARY[k].bounds(sig, base.root))]
-    if not (w.shifts_level and inside and cand.train_gain > 0.0):
+    if not ((w.shifts_level or w.drifts) and inside and cand.train_gain > 0.0):
         return None
-    full = refine_jointly(inside, {**chain, word: cand.params}, base.root, sig, folds)
+    own = _screened_range(w, cand.params, sig, base.root)
+    full = refine_jointly(inside, {**chain, word: cand.params}, base.root, sig, folds, screened=own)
     b = unbend(base.root, sig, full, folds.train)
     level = _candidate(word, full[word], cross_validate(build(b, sig, full), sig.flow_lpm, folds), before,
                        None, cand.law)
@@ -282,6 +289,21 @@ def _level_refined(word: str, chain: dict, cand: Candidate, before: CVResult, ba
         return None
     level.refined, level.chain = True, {k: p for k, p in full.items() if k != word}
     return level
+
+
+def _screened_range(w: Word, params: dict, sig: Signals, root: Base) -> tuple:
+    """``((word, parameter, lo, hi), ...)``: the positive screened grid parameters of ``w`` set in
+    ``params`` (a creep's time constant), each refinable within its grid's range but the unresolved
+    end (:attr:`Word.unresolved`, never refined onto: :func:`refine`)."""
+    out = []
+    for k, v in w.grid(sig, root).items():
+        v = np.sort(np.asarray(v, dtype=float))
+        if k not in params or len(v) < 3 or not np.all(v > 0):
+            continue
+        if w.unresolved is not None and w.unresolved[0] == k:
+            v = v[1:] if w.unresolved[1] == "low" else v[:-1]
+        out.append((w.word, k, float(v[0]), float(v[-1])))
+    return tuple(out)
 
 
 def split(word: str, params: dict, chain: dict, sig: Signals, base: Base) -> list:
@@ -1024,10 +1046,12 @@ def _joint_restart(sel: Selection, sig: Signals, folds: Folds) -> bool:
 
 
 def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Folds,
-                   rows: np.ndarray | None = None, held: tuple = (), static: bool = False) -> dict:
+                   rows: np.ndarray | None = None, held: tuple = (), screened: tuple = (),
+                   static: bool = False) -> dict:
     """``chain`` with the exact-law parameters of ``words`` (:meth:`Word.bounds`; but those ``held``,
-    ``(word, parameter)`` pairs) refined together by bounded nonlinear least squares in log scale on
-    ``rows`` (by default a subsample of the training rows, :func:`_subsample`), the PI refitted from
+    ``(word, parameter)`` pairs), and the screened parameters ``screened`` (``(word, parameter, lo,
+    hi)``, :func:`_screened_range`), refined together by bounded nonlinear least squares in log scale
+    on ``rows`` (by default a subsample of the training rows, :func:`_subsample`), the PI refitted from
     ``root`` at each evaluation; ``static``: beside a model file's free static curve of the duty
     (:func:`models.diagnose.design.static_curve`)."""
     rows = _subsample(folds.train) if rows is None else rows
@@ -1038,6 +1062,10 @@ def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Fo
                 keys.append((w, k))
                 lo.append(np.log(a))
                 hi.append(np.log(b))
+    for w, k, a, b in screened:
+        keys.append((w, k))
+        lo.append(np.log(a))
+        hi.append(np.log(b))
     lo, hi = np.array(lo), np.array(hi)
     x0 = np.clip(np.log([max(chain[w][k], 1e-12) for w, k in keys]), lo + 1e-9, hi - 1e-9)
 
