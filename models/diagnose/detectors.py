@@ -260,10 +260,10 @@ def test_effect(word: str, chain: dict, before: CVResult, base: Base, sig: Signa
 
 def _level_refined(word: str, chain: dict, cand: Candidate, before: CVResult, base: Base, sig: Signals,
                    folds: Folds) -> Candidate | None:
-    """The test of a word that moves the flow's level (:attr:`Word.shifts_level`) or drifts along the
-    recording (:attr:`Word.drifts`) with the chain's exact input-side laws refined jointly with it (and
-    its own screened time constant, :func:`_screened_range`), when that fits the training rows better
-    than the screen beside them as named; ``None`` otherwise.
+    """The test of a word that moves the flow's level (:attr:`Word.shifts_level`) with the chain's exact
+    input-side laws refined jointly with it, or of one that drifts along the recording (:attr:`Word.drifts`)
+    with those on the duty (a warm coil's) and its own screened time constant (:func:`_screened_range`),
+    when that fits the training rows better than the screen beside them as named; ``None`` otherwise.
 
     Named first, a heating takes up a sensor offset the recording also holds in its size and time
     constant (a coil 23.5 K warm with a 2.3 L/min offset, against its model file: 27 K and 272 s
@@ -278,6 +278,11 @@ def _level_refined(word: str, chain: dict, cand: Candidate, before: CVResult, ba
     w = VOCABULARY[word]
     inside = [k for k, p in chain.items() if VOCABULARY[k].input_side and VOCABULARY[k].is_exact(p)
               and any(q in p for q in VOCABULARY[k].bounds(sig, base.root))]
+    if not w.shifts_level:
+        # a drift in time trades with a law that drifts in time (a coil's warming, on the duty), not with
+        # an asymmetry's widening of the loop, which is static: refined jointly with it, a creep of a
+        # hundredth over a second took up the misfit of a lag and an offset beside it
+        inside = [k for k in inside if VOCABULARY[k].input_side == "duty"]
     if not ((w.shifts_level or w.drifts) and inside and cand.train_gain > 0.0):
         return None
     own = _screened_range(w, cand.params, sig, base.root)

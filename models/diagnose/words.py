@@ -118,7 +118,7 @@ class Word:
         24 K warm beside a clip at 125 L/min against the model file, held-out 1470, was refused by it
         while the clip was not yet named, and dropped). Its slow drift is also what a coil's warming
         named before it takes up in its size and time constant: it is tested with the chain's exact
-        input-side laws refined jointly with it, as a word that :attr:`shifts_level` is
+        laws on the duty refined jointly with it, as a word that :attr:`shifts_level` is
         (:func:`models.diagnose.detectors.test_effect`).
     """
 
