@@ -310,6 +310,25 @@ def test_saturation_bounds_the_flow_everywhere():
     assert sat.support(_sig(duty, noisy), {"full_open_lpm": 150.0}, before, 0.5) is None
 
 
+def test_a_clip_held_against_a_model_file_holds_the_flow_where_the_model_rises():
+    # a model file is flat above its identified range (full open at 155 L/min from 66 % duty): a clip
+    # holds the measured flow where the model still rises past it; a flow that rises with the model
+    # under its plateau is a level there, and one a noise's width under it cannot be told from a misfit
+    sat = VOCABULARY["saturation"]
+    duty = np.linspace(40, 75, 3500)
+    rng = np.random.default_rng(2)
+    model = np.minimum((duty - 35) * 5, 155.0)
+    for full_open in (140.0, 152.5):
+        clipped = np.minimum(model, full_open) + rng.normal(0, 0.5, len(duty))
+        assert sat.support(_sig(duty, clipped), {"full_open_lpm": full_open}, model, 0.5, fixed=True) is None
+    level = model - 2.5 + rng.normal(0, 0.5, len(duty))
+    assert "rises with it" in sat.support(_sig(duty, level), {"full_open_lpm": 152.5}, model, 0.5, fixed=True)
+    near = np.minimum(model, 154.0) + rng.normal(0, 1.0, len(duty))
+    assert "at most 1" in sat.support(_sig(duty, near), {"full_open_lpm": 154.0}, model, 1.0, fixed=True)
+    # a PI fitted on the recording bends into a plateau it sees: no claim of its own to test
+    assert sat.support(_sig(duty, level), {"full_open_lpm": 152.5}, model, 0.5) is None
+
+
 def test_thermal_fit_recovers_the_heating_law_from_a_measured_temperature():
     rate = 10.0
     duty = np.r_[np.full(3000, 60.0), np.full(3000, 45.0)]

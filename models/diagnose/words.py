@@ -393,6 +393,15 @@ START_BOUNDS = (1e-3, 0.5)
 AT_START = 1.05
 #: Fewest rows at a range end that can show a dead zone or a saturation.
 MIN_END_ROWS = 3
+#: A saturation held against a model file must lower the model's flow by more than this many times the
+#: noise on :data:`MIN_END_ROWS` rows: the clip, not a level at the top.
+CLIP_CUT_NOISE = 2.0
+#: Fewest rows where a fixed model file rises past a saturation's full-open flow below its own plateau
+#: (its flow at the top of its identified range), where the clip must hold the measured flow.
+MIN_RISING_ROWS = 20
+#: Largest slope of the measured flow on the model file's flow on those rows: a clip holds it flat (0),
+#: a level under the model's plateau follows it (1).
+MAX_CLIPPED_SLOPE = 0.5
 #: Fewest rows of a shut valve (and at least 1 % of the recording) that read a sensor's zero offset.
 MIN_ZERO_ROWS = 20
 #: Share of the rows a saturation clips beyond which rows measured above its full-open flow (by more
@@ -1179,6 +1188,28 @@ class Saturation(Word):
         top = before_lpm > params["full_open_lpm"]
         if top.sum() < MIN_END_ROWS:
             return f"only {int(top.sum())} rows where the model before it exceeds the full-open flow"
+        if fixed:
+            # a model file held fixed claims its own flow at the top, flat where its input is held at the
+            # top of its identified range. A clip holds the measured flow at the full-open flow where the
+            # model still rises past it; a flow measured under the model's own plateau that rises with
+            # the model there is a level (a sensor offset read 2.3 L/min high beside a foreign valve's
+            # asymmetric loop: a clip 2.5 L/min under the plateau took up the offset's error, its held-out
+            # residual correlation 0.61), and one it lowers by no more than the noise cannot be told from
+            # a misfit at the top (1.0 L/min under the plateau beside a dead zone, correlation 0.31)
+            cut = before_lpm[top] - params["full_open_lpm"]
+            if np.sum(cut > CLIP_CUT_NOISE * noise_lpm) < MIN_END_ROWS:
+                return (f"it lowers the model file's flow by at most {float(np.max(cut)):.3g} L/min (needs more "
+                        f"than {CLIP_CUT_NOISE:g} x the noise {noise_lpm:.3g} L/min on {MIN_END_ROWS} rows)")
+            rising = top & (before_lpm < float(np.max(before_lpm)) - noise_lpm)
+            if rising.sum() < MIN_RISING_ROWS:
+                return (f"only {int(rising.sum())} of the rows it clips are below the model file's own plateau "
+                        f"({float(np.max(before_lpm)):.4g} L/min, needs {MIN_RISING_ROWS}): it moves the model's "
+                        f"full-open flow, not a clip of its rising flow")
+            slope = float(np.polyfit(before_lpm[rising], sig.flow_lpm[rising], 1)[0])
+            if slope > MAX_CLIPPED_SLOPE:
+                return (f"where the model file rises past {params['full_open_lpm']:.4g} L/min below its own "
+                        f"plateau, the measured flow rises with it (slope {slope:.2f}, a clip holds it: at most "
+                        f"{MAX_CLIPPED_SLOPE:g})")
         # where the law clips, the measured flow must flatten at the full-open flow
         q = sig.flow_lpm[top]
         lim = 3.0 * noise_lpm + 0.01 * float(np.ptp(sig.flow_lpm))
