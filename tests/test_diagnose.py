@@ -679,6 +679,18 @@ def test_a_delay_beside_a_cracking_duty_is_named_as_a_delay(probe):
     assert "valve_dynamics" not in named and "coil_heating" not in named
 
 
+@pytest.mark.slow
+def test_a_delay_screened_behind_a_lag_is_refined_before_the_lag_is_named():
+    # a 66 ms delay on plant_sim's ramps: its screen, at a setting of its grid, ranked 3 % behind the
+    # lag's refined law, and the lag alone was named. Refined as well, the delay explains the ramps'
+    # corners better (a lag rounds them) and is named, the lag as its alternative at most
+    c = S.Case((("transport_delay", 0.0658),), "ramps", 2, 0.5)
+    d = diagnose_response(S.record(c))
+    named = {f.effect: f for f in d.findings if f.alternative_to is None}
+    assert set(named) == {"transport_delay"}
+    assert named["transport_delay"].params["delay_s"] == pytest.approx(0.0658, rel=0.1)
+
+
 def test_a_lag_alone_is_not_shared_with_a_delay():
     # a 60 ms lag on the foreign staircase: the delay tested beside it with the lateness shared explains
     # nothing more (a lag's step response is no delayed one), and is not named
