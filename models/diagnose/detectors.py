@@ -1228,8 +1228,10 @@ def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur:
     # closings average out) ranks their screens by which takes up its misplaced jump better: a lag's
     # smoothing did, by 5 % of the held-out error, beside a cracking duty 1.1 % low behind a delay
     placed = any(VOCABULARY[w].static for w in chain)
+    if other is None or not any(o is other for o in passing):
+        return accepted, None
     tied = c.gain - other.gain < AMBIGUOUS or sub_sample or placed
-    if other is None or not any(o is other for o in passing) or not (tied or c.gain - other.gain < COMPARED):
+    if not (tied or c.gain - other.gain < COMPARED):
         return accepted, None
     alt = _accept(other, chain, cur, sig, folds, noise, margins)
     if isinstance(alt[0], str):
