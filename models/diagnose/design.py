@@ -1060,7 +1060,7 @@ def flow_gain(sig: Signals, chain: dict) -> np.ndarray | None:
 def is_open(sig: Signals, chain: dict) -> np.ndarray | bool:
     """Rows where the chain lets flow through (all when it has no dead zone)."""
     g = flow_gain(sig, chain)
-    return True if g is None else g > 0
+    return True if g is None else g > 0.5
 
 
 def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray) -> Base:

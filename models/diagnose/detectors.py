@@ -506,11 +506,27 @@ def beside_recorded(word: str, sig: Signals, chain: dict) -> dict:
 
 def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, folds: Folds) -> dict:
     """The exact law of ``w`` joining ``chain``, refined from the best of ``starts`` of each setting of
-    the parameters the refinement keeps fixed, the best so refined on the training rows."""
+    the parameters the refinement keeps fixed, the best so refined on the training rows.
+
+    Beside a law with a hard edge on the duty ``w`` moves (a cracking duty beside a heating), the
+    starts are ranked and refined with that edge smoothed (:func:`smoothed`), and the refined
+    settings compared with it hard."""
     rows = _subsample(folds.train, START_ROWS)
+    hard, chain = chain, smoothed(w, chain, sig)
+    edged = chain != hard
 
     def sse(p, rows=rows):
         return train_sse(design(w.word, base, sig, {**chain, w.word: p}, folds, rows)[0], sig.flow_lpm, rows)
+
+    def refined_best(g):
+        if not edged:
+            return [refine(w.word, chain, min(g, key=sse), base, sig, folds)]
+        # beside an edge, the error of a start is mostly the rows it misplaces about the edge, few and
+        # held together (a hold whose effective duty drifts across the cracking duty as the coil
+        # warms), and ranks the starts by how near they lie to the law's valley, not by its floor
+        # beneath them (a coil 36 K warm on a 150 s time constant: 55 K on 540 s ranked first, a point
+        # of the valley's far end the refinement does not leave): the best few are each refined
+        return [refine(w.word, chain, p, base, sig, folds) for p in sorted(g, key=sse)[:EDGE_LEADS]]
 
     # the best start of each setting of the parameters the refinement keeps fixed (a coil warm or
     # cold at the start), each refined: a fixed setting that is wrong is otherwise made up for by
@@ -521,7 +537,8 @@ def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, fo
         # (and each set of refined parameters: a heating with and without its valve's input floor)
         key = (tuple(sorted((k, v) for k, v in p.items() if k not in box)), tuple(sorted(k for k in p if k in box)))
         groups.setdefault(key, []).append(p)
-    refined = [refine(w.word, chain, min(g, key=sse), base, sig, folds) for g in groups.values()]
+    refined = [p for g in groups.values() for p in refined_best(g)]
+    chain = hard
     # a part of the law that holds some rows at a setting of its own (a valve's input floor) must fit
     # them better than the law without it: one that fits them worse only frees the PI elsewhere (a
     # valve opening with a jump just above the lowest duty, a concealed dead zone, had those rows held
@@ -531,10 +548,27 @@ def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, fo
     # read as warm from the start trades its rise against its time constant up to the largest rise):
     # the settings refined to the inside are compared, if any
     inside = [p for p in refined if _inside(p, box, w.settled_ends)] or refined
-    return _tied_choice(w, chain, inside, base, sig, folds)
+    return _tied_choice(w, chain, inside, base, sig, folds, least=edged)
 
 
-def _tied_choice(w: Word, chain: dict, settings: list, base: Base, sig: Signals, folds: Folds) -> dict:
+def smoothed(w: Word, chain: dict, sig: Signals) -> dict:
+    """``chain`` with the edges of its laws smoothed (:meth:`Word.smoothed`) for the search of ``w``'s
+    exact law on the duty the magnetics see; ``chain`` itself for any other word.
+
+    A cracking duty carried along with a heating (:meth:`.words.DeadZone.carried`) shuts the rows
+    below it on the effective duty: the heating's training error then counts the rows that cross the
+    edge on the wrong side, a staircase in its rise and time constant, on which the refinement stops
+    where it starts (from 20 K on 144 s for a coil 22.8 K warm on 180 s, a point at twice the
+    error of the truth: the refinement's finite differences step on one tread). Smoothed, the error
+    falls continuously towards the valley's floor and the refinement reaches it; the settings it
+    reaches are then compared with the hard edge (:func:`_tied_choice`)."""
+    if w.input_side != "duty":
+        return chain
+    return {k: VOCABULARY[k].smoothed(sig, p) for k, p in chain.items()}
+
+
+def _tied_choice(w: Word, chain: dict, settings: list, base: Base, sig: Signals, folds: Folds,
+                 least: bool = False) -> dict:
     """The setting of ``settings`` (``w``'s exact law joining ``chain``) of the lowest training error,
     unless it ties with others: among those whose error is higher by at most :data:`PHYSICS_TIE` of
     the error the best explains, the first within the word's physics (:meth:`Word.within_physics`),
@@ -543,7 +577,13 @@ def _tied_choice(w: Word, chain: dict, settings: list, base: Base, sig: Signals,
     A setting beyond the word's physics (a coil read as 130 K warm from the start) takes up another
     word's misfit; a coil warm from the start and a cold one trade exactly to first order on a PI
     fitted on the recording (:meth:`.words.CoilHeating.tie_rank`), and which one wins was the
-    misfit's choice (a warm 59 K for a cold 30 K beside a clip)."""
+    misfit's choice (a warm 59 K for a cold 30 K beside a clip).
+
+    With ``least``, among settings that tie so and whose error is within :data:`LEAST_TIE` of the
+    lowest, the least effect (:meth:`Word.extent`) before the lowest error: settings refined from several points of a valley along which the law's parameters
+    trade (a heating's rise and time constant beside a cracking duty) that the recording does not
+    tell apart (on the paper's sweep, a coil 24 K warm on 180 s fitted within 10 % of the error it
+    explains as 49 K on 570 s, a warming the recording sees as a ramp)."""
     if len(settings) == 1:
         return settings[0]
     rows = _subsample(folds.train)
@@ -551,14 +591,21 @@ def _tied_choice(w: Word, chain: dict, settings: list, base: Base, sig: Signals,
            for p in settings]
     best = min(err)
     none = train_sse(design(w.word, base, sig, chain, folds, rows)[0], sig.flow_lpm, rows)
-    near = [i for i, e in enumerate(err) if e - best <= PHYSICS_TIE * max(none - best, 0.0)]
-    return settings[min(near, key=lambda i: (not w.within_physics(settings[i]), w.tie_rank(settings[i]), err[i]))]
+    near = [i for i, e in enumerate(err) if e - best <= PHYSICS_TIE * max(none - best, 0.0)
+            and (not least or e <= (1.0 + LEAST_TIE) * best)]
+    return settings[min(near, key=lambda i: (not w.within_physics(settings[i]), w.tie_rank(settings[i]),
+                                             w.extent(settings[i]) if least else 0.0, err[i]))]
 
 
 #: A refined setting gives way to one within the word's physics (:meth:`Word.within_physics`), or one the
 #: word prefers among those a fit cannot tell apart (:meth:`Word.tie_rank`), whose training error is
 #: higher by at most this fraction of the error the former explains.
 PHYSICS_TIE = 0.1
+#: Starts of each setting each refined beside a smoothed edge (:func:`_multistart`).
+EDGE_LEADS = 3
+#: Settings of a law that tie (:func:`_tied_choice`) and whose training error is within this fraction of
+#: the lowest give way to the least effect among them.
+LEAST_TIE = 0.1
 #: A refined parameter within this factor of a bound of its box is at the bound.
 AT_BOUND = 1.02
 

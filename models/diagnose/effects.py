@@ -314,9 +314,13 @@ def loop_offset(play_out: np.ndarray, x_unit: np.ndarray, w: np.ndarray) -> np.n
     return (play_out - np.asarray(x_unit)[:, None]) @ np.asarray(w)
 
 
-def open_mask(duty_pct: np.ndarray, cracking_pct: float) -> np.ndarray:
-    """1 where the duty exceeds the cracking duty, 0 where the valve stays shut."""
-    return (np.asarray(duty_pct) > cracking_pct).astype(np.float64)
+def open_mask(duty_pct: np.ndarray, cracking_pct: float, edge_pct: float = 0.0) -> np.ndarray:
+    """1 where the duty exceeds the cracking duty, 0 where the valve stays shut; with an ``edge_pct``
+    a smooth step of that width instead, ``(1 + tanh((duty - cracking) / edge)) / 2``."""
+    x = np.asarray(duty_pct, dtype=np.float64)
+    if edge_pct > 0.0:
+        return 0.5 * (1.0 + np.tanh((x - cracking_pct) / edge_pct))
+    return (x > cracking_pct).astype(np.float64)
 
 
 @njit(cache=True)

@@ -222,6 +222,12 @@ class Word:
         (:func:`models.diagnose.detectors._refined_beside`); empty by default."""
         return []
 
+    def smoothed(self, sig: Signals, params: dict) -> dict:
+        """``params`` with the law's hard edge smoothed, for the search of a law on the duty the
+        magnetics see beside it (:func:`models.diagnose.detectors.smoothed`); ``params`` itself when
+        it has none."""
+        return params
+
     def held(self, sig: Signals, params: dict, base) -> tuple | None:
         """``(rest, rows)``: the rows a part of the law fitted to the recording holds at a setting of
         its own (a valve's input floor) and ``params`` without that part, which must fit those rows
@@ -335,6 +341,11 @@ class Word:
         """Whether the exact law's ``params`` stay where the word's physics alone reaches (else it is
         named with :meth:`caveat`, when no setting within it explains nearly as much)."""
         return True
+
+    def extent(self, params: dict) -> float:
+        """How much effect ``params`` make, to prefer the least among settings a fit cannot tell apart
+        (:func:`models.diagnose.detectors._tied_choice`); 0: no preference."""
+        return 0.0
 
     def tie_rank(self, params: dict) -> int:
         """The word's preference (lowest first) among settings of its law that the fit cannot tell
@@ -701,6 +712,9 @@ class CoilHeating(Word):
         # reading (no warming before the recording that the recording cannot show)
         return int(params.get("start", 0.0) > 0.0)
 
+    def extent(self, params):
+        return params.get("rise55_k", 0.0)
+
     def beside_memory(self, sig):
         # a coil's temperature follows the power it dissipates through its thermal time constant, at
         # every row; a measured coil temperature drives the law directly
@@ -833,6 +847,11 @@ class TransportDelay(Word):
         return {**params, "delay_s": float(lateness_s)} if lateness_s > 0 else None
 
 
+#: A dead zone's edge is smoothed, for the search of a heating beside it, over the duty a coil this
+#: much warmer (K) moves its cracking duty by.
+EDGE_K = 0.25
+
+
 @dataclass(frozen=True)
 class DeadZone(Word):
     """No flow while the duty is below the cracking duty."""
@@ -886,7 +905,7 @@ class DeadZone(Word):
         # cracking duty is one of the coil's current, which a warm coil's resistance lowers at a
         # given commanded duty (a 46.5 % cracking duty held on the commanded duty beside a 26 K
         # heating left each breath's opening a few per cent late or early, read as a 97 K heating)
-        return fx.open_mask(duty_pct, params["cracking_pct"])
+        return fx.open_mask(duty_pct, params["cracking_pct"], params.get("edge_pct", 0.0))
 
     def carried(self, sig, params, chain):
         # a warm coil lowers the current at every commanded duty, and a cracking duty is one of the
@@ -894,7 +913,16 @@ class DeadZone(Word):
         # each setting of the heating (held where it was named, a 46.7 % cracking duty placed beside a
         # 97 K heating kept the heating refined beside it at 43 K for 26 K)
         placed = self.placed(sig, {w: p for w, p in chain.items() if w != self.word})
-        return placed[0] if placed else params
+        if not placed:
+            return params
+        return {**placed[0], **{k: v for k, v in params.items() if k == "edge_pct"}}
+
+    def smoothed(self, sig, params):
+        # the edge over the duty a fraction of a kelvin moves the cracking duty by (EDGE_K): finer than
+        # the rise a heating is sized to, wide enough to join the rows that cross it. A wider edge
+        # (a 1 % duty band) passes flow below the cracking duty that the valve does not, and the
+        # heating's valley floor then falls towards a slow warming (40 K on 600 s for 22.8 K on 180 s)
+        return {**params, "edge_pct": EDGE_K * fx.ALPHA_CU_PER_K * params["cracking_pct"]}
 
     def at_rest(self, sig, params, base):
         rest = float(np.min(sig.duty_pct))
