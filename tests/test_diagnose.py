@@ -153,6 +153,22 @@ def test_a_heating_is_placed_beside_the_recorded_supply():
     d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
     assert G.judge(probe, d) == []
 
+@pytest.mark.parametrize("effects,seed,noise", [
+    ((("supply_pressure", 0.22), ("dead_zone", 46.5), ("coil_heating", 26.0)), 9622, 1.0),
+    ((("dead_zone", 46.2), ("coil_heating", 24.0)), 9628, 0.3),
+])
+def test_a_warm_coil_beside_a_dead_zone_is_named_at_its_size(effects, seed, noise):
+    """A coil warming beside a dead zone on a mixed excitation: the cracking duty, placed on the duty the
+    magnetics see under each setting of the heating, shuts the rows of each hold whose effective duty
+    drifts below it as the coil warms, so the heating's training error steps from row to row, and its
+    refinement stopped at the start it was given (a coil 24 K warm read as 41 K on a 540 s time
+    constant, 26 K as 35 K). The heating is named within a quarter of its rise, beside the dead zone."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", effects, "mixed", seed, noise)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+
+
 @pytest.mark.parametrize("heat_k,offset_lpm,seed", [(30.0, 2.0, 2201), (25.0, -1.5, 2202)])
 def test_a_sensor_offset_beside_a_heating_is_named_at_its_size(heat_k, offset_lpm, seed):
     """A warm coil and a sensor offset on a mixed excitation, against the model file: named first, the
