@@ -260,7 +260,8 @@ class SlopeRows:
         return cls(YD, YD.T @ YD, YD.sum(axis=0))
 
 
-def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE, step_ridge: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
+def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE,
+                   step_ridge: "float | np.ndarray" = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
     """:func:`fit_weights` (constrained, with extra columns) on the union of row sets, from their
     normal equations.
 
@@ -271,11 +272,12 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE, step_ridge: float 
         extra columns on its rows (n, p).
     min_slope : float
         Lower bound for the loading-curve slopes, normalized units.
-    step_ridge : float
-        A ridge ``step_ridge * sum_{i>=1} w_i^2`` on the weights of the operators with a threshold (the
-        steps of the loading-curve slope): a step the rows do not identify (operators that move
-        together, or hardly at all) stays near zero, the slope going on as the rows below it tell,
-        instead of opposite steps running off against each other.
+    step_ridge : float or ndarray, shape (m - 1,)
+        A ridge ``sum_{i>=1} step_ridge_i w_i^2`` on the weights of the operators with a threshold (the
+        steps of the loading-curve slope; one value for all, or one per operator ``1..m-1``): a step
+        the rows do not identify (operators that move together, or hardly at all) stays near zero, the
+        slope going on as the rows below it tell, instead of opposite steps running off against each
+        other.
 
     Returns
     -------
@@ -307,20 +309,23 @@ def fit_weights_on(parts: list, min_slope: float = MIN_SLOPE, step_ridge: float 
         Atb[m] += y.sum()
         Atb[m + 1:] += Es.T @ y
     G = np.triu(G) + np.triu(G, 1).T
-    if step_ridge > 0:
+    lam = np.broadcast_to(np.asarray(step_ridge, dtype=np.float64), (m - 1,))
+    ridged = bool(np.any(lam > 0))
+    if ridged:
         # on the steps w_i = s_i - s_(i-1), i >= 1, of the slopes s the solver works in: a tridiagonal
-        # D^T D of the m - 1 differences
-        i = np.arange(m)
-        G[i, i] += step_ridge * np.where((i > 0) & (i < m - 1), 2.0, 1.0)
-        G[i[:-1], i[1:]] -= step_ridge
-        G[i[1:], i[:-1]] -= step_ridge
+        # D^T diag(lam) D of the m - 1 differences
+        i = np.arange(m - 1)
+        G[i, i] += lam
+        G[i + 1, i + 1] += lam
+        G[i, i + 1] -= lam
+        G[i + 1, i] -= lam
     lb = np.concatenate([np.full(m, min_slope), np.full(1 + p, -np.inf)])
     R = _cholesky_triangle(G)
     if R is None:  # ill conditioned: the rows themselves, compressed by QR
         A = np.vstack([np.column_stack([ops.YD, np.ones(len(y)), E / scale]) for ops, y, E in parts])
         b = np.concatenate([y for _, y, _ in parts])
-        if step_ridge > 0:
-            D = np.sqrt(step_ridge) * (np.eye(m, k=1) - np.eye(m))[:-1]
+        if ridged:
+            D = np.sqrt(lam)[:, None] * (np.eye(m, k=1) - np.eye(m))[:-1]
             A = np.vstack([A, np.column_stack([D, np.zeros((m - 1, 1 + p))])])
             b = np.concatenate([b, np.zeros(m - 1)])
         theta = _least_squares(A, b, lb)

@@ -516,6 +516,58 @@ def test_a_clip_a_refitted_pi_flattens_into_is_said_so():
     assert "saturation" in named or "flattens at 128" in d.model["not_identifiable"]["saturation"]
 
 
+@pytest.mark.slow  # ~4 s
+def test_a_pi_refitted_under_a_clip_keeps_the_memory_of_a_breath_top_first_reached_held_out():
+    # breaths on a valve clipped at 142 L/min whose running top grows twice within one holdout block
+    # (30 and 33 s): the memory those breaths leave in the PI's widest operators is one no training row
+    # shows, and only the clipped rows move those operators. Refitted for the holdout check under the
+    # clip, the PI keeps the loading curve's slope there instead of inventing steps for them: after
+    # those breaths it still has the valve shut at rest (within the noise), and the clip lowers the
+    # held-out error of the baseline
+    import types
+
+    import diagnose_gross as G
+    from models.diagnose import (_ChainFits, fit_baseline, make_folds, memory_start_s, raw_signals,
+                                 running_rows, work_signals)
+    from models.diagnose.design import clip, unbend
+
+    noise = 0.3
+    rec, rest = running_rows(G.record(G.Probe("plant", (("saturation", 142.0),), "breaths", 10143, noise)))
+    raw, sig = raw_signals(rec, rest), work_signals(rec, rest)
+    folds = make_folds(sig.t_s, start_s=memory_start_s(sig))
+    base = fit_baseline(sig, folds)
+    chain = {"saturation": {"full_open_lpm": 142.0}}
+    sel = types.SimpleNamespace(chain=chain, reference=unbend(base, sig, {}, folds.train))
+    fits = _ChainFits(sel, sig, raw, folds, clip(base.predict(raw, {}), None, bool(base.shut(raw).any())))
+    hold, y, x, t = folds.holdout_at(raw.t_s), raw.flow_lpm, raw.duty_pct, raw.t_s
+    # the held-out rows after a top higher than any trained on before them, until the next training row
+    top_trained = np.maximum.accumulate(np.where(folds.holdout_at(t) | (t < folds.start_s), -np.inf, x))
+    first = np.flatnonzero(hold & (np.maximum.accumulate(x) > top_trained + 1.0))[0]
+    unseen = hold & (np.arange(len(t)) >= first) & (np.cumsum(~hold) == np.cumsum(~hold)[first])
+    at_rest = unseen & (y < 3.0 * noise) & (x < 35.0)
+    assert at_rest.sum() > 100
+
+    def rmse(e):
+        return float(np.sqrt(np.mean(e * e)))
+
+    clipped, baseline = fits.predict(chain), fits.predict({})
+    assert rmse((clipped - y)[at_rest]) < 2.0 * noise
+    assert rmse((clipped - y)[hold]) < rmse((baseline - y)[hold])
+
+
+@pytest.mark.slow  # ~10 s
+def test_a_clip_on_breaths_with_a_top_first_reached_held_out_is_named():
+    # the same breaths: the clip is named at its size and lowers the held-out error; without it nothing
+    # is named
+    import diagnose_gross as G
+
+    d = diagnose_response(G.record(G.Probe("plant", (("saturation", 142.0),), "breaths", 10143, 0.3)))
+    (f,) = d.findings
+    assert f.effect == "saturation" and f.params["full_open_lpm"] == pytest.approx(142.0, rel=0.01)
+    assert f.holdout_rmse_after < f.holdout_rmse_before
+    assert not diagnose_response(G.record(G.Probe("plant", (), "breaths", 10143, 0.3))).findings
+
+
 @pytest.mark.slow  # ~60 s
 @pytest.mark.parametrize("creep, full_open, seed", [(0.12, 140.0, 3701), (0.2, 128.0, 3702)])
 def test_a_creep_beside_a_clip_on_the_paper_sweep_is_named_and_no_heating(creep, full_open, seed):

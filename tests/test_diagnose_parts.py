@@ -343,6 +343,30 @@ def test_a_slope_step_the_rows_do_not_identify_stays_near_zero():
     np.testing.assert_allclose(w_free[:-2], w[:-2], atol=0.01)
 
 
+def test_a_step_ridge_per_operator_holds_only_the_steps_it_weighs():
+    # one ridge for every step is the scalar ridge; a ridge on the widest operator's step alone moves
+    # its share of an unidentified pair onto the other, and leaves the steps the rows tell as they are
+    from models.pi import SlopeRows, fit_weights_on, regressors, thresholds
+
+    rng = np.random.default_rng(5)
+    r = thresholds(8)
+    x = np.cumsum(rng.normal(0, 0.05, 3000))
+    x = 1.6 * (x - x.min()) / np.ptp(x) - 1
+    Y = regressors(r, x)
+    Y[:, -1] = Y[:, -2]
+    y = Y @ np.r_[0.5, np.full(7, 0.05), 0.3] + rng.normal(0, 1e-3, len(x))
+    parts = [(SlopeRows.of(Y), y, np.zeros((len(x), 0)))]
+    lam = 1e-7 * len(x)
+    w, c, _ = fit_weights_on(parts, step_ridge=lam)
+    w_each, c_each, _ = fit_weights_on(parts, step_ridge=np.full(len(r) - 1, lam))
+    np.testing.assert_allclose(w_each, w, atol=1e-9)
+    one = np.full(len(r) - 1, lam)
+    one[-1] = 1e3 * lam
+    w_one, _, _ = fit_weights_on(parts, step_ridge=one)
+    assert abs(w_one[-1]) < 0.01 and w_one[-2] == pytest.approx(0.35, abs=0.01)
+    np.testing.assert_allclose(w_one[:-2], w[:-2], atol=0.01)
+
+
 def test_cross_validation_recovers_a_linear_law():
     rng = np.random.default_rng(3)
     t = np.arange(0, 120, 0.05)

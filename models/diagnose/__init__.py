@@ -399,7 +399,9 @@ class _ChainFits:
 
     Each sub-chain keeps its words' nonlinear parameters from the search and has the PI refitted
     under it from the search's reference, with every linear coefficient; the empty chain is the
-    baseline as given.
+    baseline as given. Under a clip, the refit holds near zero the steps of the operators that mostly
+    the clipped rows move (:func:`.design.unbend` with ``untold``): a held-out breath that first reaches
+    a new top leaves a memory of them that no training row shows.
     """
 
     def __init__(self, sel: Selection, sig: Signals, raw: Signals, folds: Folds, baseline_lpm: np.ndarray):
@@ -427,7 +429,7 @@ class _ChainFits:
         key = repr(list(chain.items()))
         if key not in self._memo:
             sig, folds = self.sig, self.folds
-            b = unbend(self.sel.reference, sig, chain, folds.train)
+            b = unbend(self.sel.reference, sig, chain, folds.train, untold=True)
             d = build(b, sig, chain)
             theta = fit_final(d, sig.flow_lpm, folds.train)
             self._memo[key] = build(b, self.raw, chain).predict(theta), d, theta, b
