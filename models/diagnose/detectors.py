@@ -1495,24 +1495,24 @@ def _memory_steps(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: S
 def _static_misfit(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
                    margins: Margins) -> str | None:
     """Why a creep's drift (:attr:`Word.drifts`) held against a model file explains no more than the
-    model's own misfit of the valve's loading curve, or ``None``: with a free static curve of the duty
-    (:func:`models.diagnose.design.static_curve`) in the model with and without it (``chain``, on
-    ``cur``; ``full``, on ``b``), it must still lower the held-out error by its margin in a fold
-    majority."""
+    model's own misfit of the valve's loading curve and loop, or ``None``: with a free curve of the duty
+    on each branch (:func:`models.diagnose.design.loop_curves`: a free loop, rate-independent) in the
+    model with and without it (``chain``, on ``cur``; ``full``, on ``b``), it must still lower the
+    held-out error by its margin in a fold majority."""
     w = VOCABULARY[word]
     if not w.drifts or cur.refit:
         return None
     y = sig.flow_lpm
-    c = _candidate(word, full[word], cross_validate(build(b, sig, full, static=True), y, folds),
-                   cross_validate(build(cur, sig, chain, static=True), y, folds), b,
+    c = _candidate(word, full[word], cross_validate(build(b, sig, full, static=True, branches=True), y, folds),
+                   cross_validate(build(cur, sig, chain, static=True, branches=True), y, folds), b,
                    "exact" if w.is_exact(full[word]) else "linearized")
     need = margins.gain[word]
     if c.gain > need and c.majority(margins.min_wins):
         return None
-    return (f"with a free static curve of the duty beside the model file ({STATIC_KNOTS} knots over its range) "
-            f"its held-out error changes by {-100 * c.gain:+.2f} % (needs below -{100 * need:.2f} %), lower in "
-            f"{c.wins}/{len(c.test_after)} folds: the model's misfit of the valve's loading curve, a function of "
-            f"the duty alone, not a drift in time")
+    return (f"with a free curve of the duty on each branch beside the model file ({STATIC_KNOTS} knots over its "
+            f"range, rising and falling) its held-out error changes by {-100 * c.gain:+.2f} % (needs below "
+            f"-{100 * need:.2f} %), lower in {c.wins}/{len(c.test_after)} folds: the model's misfit of the valve's "
+            f"loading curve and loop, a function of the duty's history alone, not a drift in time")
 
 
 def _beyond_rest(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: Signals, folds: Folds,
@@ -1614,7 +1614,7 @@ def _unsupported_after_drop(sel: Selection, sig: Signals, folds: Folds, margins:
 
 def _static_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Margins, rnd: int) -> str | None:
     """The final chain's creep held against a model file, checked beyond the model's own misfit of the
-    valve's loading curve (:func:`_static_misfit`): one that explains no more is dropped as the
+    valve's loading curve and loop (:func:`_static_misfit`): one that explains no more is dropped as the
     backward check drops a word (traced as :data:`DROPPED`). Returns the word dropped, or ``None``.
 
     Checked on the final chain, not as the creep is named: a spurious creep named early can carry the

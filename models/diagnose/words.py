@@ -112,8 +112,9 @@ class Word:
         measured shut (:func:`models.diagnose.design.build`).
     drifts : bool
         Its law is a drift in time that follows the duty's reversals (a creep): held against a model
-        file it must explain the recording beyond a free static curve of the duty, the model's own
-        misfit of the valve's loading curve (:func:`models.diagnose.design.static_curve`). Not a coil
+        file it must explain the recording beyond a free curve of the duty on each branch, the model's
+        own misfit of the valve's loading curve and loop (:func:`models.diagnose.design.loop_curves`):
+        settled after each reversal, a creep is a level on each branch, as a loop's misfit is. Not a coil
         warming: its drift is a gain over the whole duty range, which the curve takes up in part (a coil
         24 K warm beside a clip at 125 L/min against the model file, held-out 1470, was refused by it
         while the clip was not yet named, and dropped). Its slow drift is also what a coil's warming
