@@ -169,6 +169,21 @@ def test_a_warm_coil_beside_a_dead_zone_is_named_at_its_size(effects, seed, nois
     assert G.judge(probe, d) == []
 
 
+def test_a_lag_beside_a_warm_coil_is_screened_with_the_pi_refitted_under_it():
+    """A 45 ms lag beside a coil 25 K warm on the foreign chirp: with the heating named first and the PI
+    refitted under it, the PI's loop took up part of the lag (the chirp lags more as its frequency
+    rises), the lag's screen on that PI gained too little beside the heating and a delay was named in
+    its place. Screened with the PI refitted with it in place, against the PI refitted with a time
+    response that does nothing, the lag is named (a delay at most its alternative) and the heating at
+    its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("valve_dynamics", 0.045), ("coil_heating", 25.0)), "chirp", 9901, 1.0)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+    named = {f.effect for f in d.findings if f.alternative_to is None}
+    assert named == {"valve_dynamics", "coil_heating"}
+
+
 @pytest.mark.parametrize("heat_k,offset_lpm,seed", [(30.0, 2.0, 2201), (25.0, -1.5, 2202)])
 def test_a_sensor_offset_beside_a_heating_is_named_at_its_size(heat_k, offset_lpm, seed):
     """A warm coil and a sensor offset on a mixed excitation, against the model file: named first, the

@@ -401,6 +401,20 @@ MIN_EXPLAINED_SHARE = 0.6
 #: Box (position in the input range, 0..1) where an asymmetry's widening may start on a recording
 #: resting below the valve's opening.
 START_BOUNDS = (1e-3, 0.5)
+
+
+def explained_where_largest(flow_lpm: np.ndarray, before_lpm: np.ndarray, after_lpm: np.ndarray,
+                            noise_lpm: float) -> float:
+    """Share of the residual's mean square beyond the noise that a law's correction (``after_lpm -
+    before_lpm``) explains on the rows it moves most (:data:`LARGEST_SHARE`); 0 with no residual beyond
+    the noise there. A law that follows another's residual over the recording gains held out, but is
+    not that residual where its own correction is largest."""
+    delta = after_lpm - before_lpm
+    top = np.abs(delta) >= np.quantile(np.abs(delta), 1.0 - LARGEST_SHARE)
+    resid = (flow_lpm - before_lpm)[top]
+    excess = float(np.mean(resid ** 2)) - noise_lpm ** 2
+    left = float(np.mean((resid - delta[top]) ** 2)) - noise_lpm ** 2
+    return 1.0 - left / excess if excess > 0 else 0.0
 #: A start placed near a bound of a refinement's box is placed this factor inside it.
 AT_START = 1.05
 #: Fewest rows at a range end that can show a dead zone or a saturation.
@@ -550,12 +564,7 @@ class AsymmetricHysteresis(Word):
         # of another word (a coil's heating under-sized beside a supply and a creep) correlates with
         # the widening over a sweep's loops, and gains held out, but is not the widening where the
         # widening is largest
-        delta = after_lpm - before_lpm
-        top = np.abs(delta) >= np.quantile(np.abs(delta), 1.0 - LARGEST_SHARE)
-        resid = (sig.flow_lpm - before_lpm)[top]
-        excess = float(np.mean(resid ** 2)) - noise_lpm ** 2
-        left = float(np.mean((resid - delta[top]) ** 2)) - noise_lpm ** 2
-        share = 1.0 - left / excess if excess > 0 else 0.0
+        share = explained_where_largest(sig.flow_lpm, before_lpm, after_lpm, noise_lpm)
         if share < MIN_EXPLAINED_SHARE:
             return (f"where its correction is largest (the {100 * LARGEST_SHARE:.0f} % of rows it moves most) it "
                     f"explains {100 * share:.0f} % of the residual beyond the noise (needs "
