@@ -173,9 +173,9 @@ def test_a_lag_beside_a_warm_coil_is_screened_with_the_pi_refitted_under_it():
     """A 45 ms lag beside a coil 25 K warm on the foreign chirp: with the heating named first and the PI
     refitted under it, the PI's loop took up part of the lag (the chirp lags more as its frequency
     rises), the lag's screen on that PI gained too little beside the heating and a delay was named in
-    its place. Screened with the PI refitted with it in place, against the PI refitted with a time
-    response that does nothing, the lag is named (a delay at most its alternative) and the heating at
-    its size."""
+    its place. Refined and cross-validated with the PI refitted with it in place, against the PI
+    refitted with a time response that does nothing, the lag is named (a delay at most its
+    alternative), and the heating, refined again beside it, at its size."""
     G = pytest.importorskip("diagnose_gross")
     probe = G.Probe("foreign", (("valve_dynamics", 0.045), ("coil_heating", 25.0)), "chirp", 9901, 1.0)
     d = diagnose_response(G.record(probe))
