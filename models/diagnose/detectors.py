@@ -39,7 +39,7 @@ from scipy.optimize import least_squares, minimize_scalar
 
 from .calibrate import Margins
 from .design import (STATIC_KNOTS, Base, CVResult, Design, build, censored, cross_validate, fit_final, has_dynamics,
-                     memory_epochs, solve, unbend)
+                     memory_epochs, solve, unbend, unplaced_epochs)
 from .folds import Folds
 from .signals import Signals, noise_lpm
 from .trace import ALTERNATIVE, BELOW_MARGIN, DROPPED, MASKED, NAMED, NOT_PHYSICAL, UNSUPPORTED, Decision
@@ -1498,14 +1498,17 @@ def _memory_steps(word: str, chain: dict, full: dict, cur: Base, b: Base, sig: S
     """Why a slow drift's law (:meth:`Word.beside_memory`) explains no more than a staircase at the
     valve's memory epochs (:func:`models.diagnose.design.memory_epochs`), or ``None``: with a free
     offset per epoch in the model with and without it (``chain``, on ``cur``; ``full``, on ``b``),
-    it must still lower the held-out error by its margin in a fold majority."""
+    it must still lower the held-out error by its margin in a fold majority. The epochs whose fitted
+    rows lie in one fold only are neither fitted nor scored (:func:`models.diagnose.design.unplaced_epochs`):
+    held out, no offset can be placed for them, and a drift steepest there took up their step."""
     w = VOCABULARY[word]
     epochs = memory_epochs(sig).shape[1] if w.beside_memory(sig) and cur.refit else 0
     if not epochs:
         return None
     y = sig.flow_lpm
-    c = _candidate(word, full[word], cross_validate(build(b, sig, full, memory=True), y, folds),
-                   cross_validate(build(cur, sig, chain, memory=True), y, folds), b,
+    skip = unplaced_epochs(sig, folds)
+    c = _candidate(word, full[word], cross_validate(build(b, sig, full, memory=True), y, folds, skip),
+                   cross_validate(build(cur, sig, chain, memory=True), y, folds, skip), b,
                    "exact" if w.is_exact(full[word]) else "linearized")
     need = margins.gain[word]
     if c.gain > need and c.majority(margins.min_wins):
