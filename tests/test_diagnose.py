@@ -1215,3 +1215,46 @@ def test_rows_left_to_a_clip_are_chosen_by_the_measured_plateau():
     b = unbend(root, sig, chain, folds.train)
     d = build(b, sig, chain)
     assert d.predict(fit_final(d, sig.flow_lpm, folds.train)).max() <= 130.0
+
+
+def test_the_plateau_behind_a_delay_between_samples_keeps_the_sensor_noise_band():
+    # a delay of 2.5 samples is undone by interpolating two rows: each valve row keeps half the
+    # noise's variance, but its second differences read a third of its standard deviation. The band
+    # under the clip is the sensor's noise as the undoing passes it on, so the plateau at the valve
+    # loses only the interpolated row at each end of a stretch (a band read off the undone flow lost
+    # one plateau row in twenty to the noise, fitted as open)
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import work_signals
+
+    sig = work_signals(_plant_recording({"saturation": 130.0}, "paper_identification", 120.0))
+    root = fit_baseline(sig, make_folds(sig.t_s))
+    at_sensor = root.plateau(sig, {"saturation": {"full_open_lpm": 130.0}}, valve=False)[0]
+    stretches = int(np.sum(np.diff(at_sensor.astype(int)) == 1))
+    assert stretches >= 3
+    for shift in (2.0, 2.25, 2.5):
+        chain = {"transport_delay": {"delay_s": shift / sig.rate_hz}, "saturation": {"full_open_lpm": 130.0}}
+        at_valve = root.plateau(sig, chain)[0]
+        assert at_valve.sum() >= at_sensor.sum() - 2 * stretches - 0.01 * at_sensor.sum(), shift
+
+
+def test_undoing_a_time_response_passes_white_noise_by_its_impulse_norm():
+    # a delay between samples averages two rows ((1 - f)^2 + f^2 of the variance); a lag's one-step
+    # inverse amplifies by sqrt(1 + a^2) / (1 - a); a static law passes the noise as it is
+    from models.diagnose.design import undo_gain
+
+    rate = 50.0
+    assert undo_gain({"saturation": {"full_open_lpm": 130.0}}, rate) == pytest.approx(1.0)
+    for f in (0.0, 0.25, 0.5):
+        assert undo_gain({"transport_delay": {"delay_s": (2 + f) / rate}}, rate) == pytest.approx(
+            np.hypot(1 - f, f))
+    a = np.exp(-1.0 / (rate * 0.04))
+    assert undo_gain({"valve_dynamics": {"tau_s": 0.04, "phase": 1.0}}, rate) == pytest.approx(
+        np.sqrt(1 + a * a) / (1 - a))
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(200_000)
+    chain = {"valve_dynamics": {"tau_s": 0.03, "phase": 0.5}, "transport_delay": {"delay_s": 0.035}}
+    undone = e
+    for w, p in reversed(chain.items()):
+        undone = VOCABULARY[w].undo(undone, rate, p)
+    assert undo_gain(chain, rate) == pytest.approx(np.std(undone[200:-200]), rel=0.01)

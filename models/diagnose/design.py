@@ -210,10 +210,17 @@ class Base:
         if c is None:
             return np.zeros(len(sig), dtype=bool), np.full(len(sig), np.inf)
         flow = sig.flow_lpm
+        noise = noise_lpm(flow)
         if valve:
             for w, p in reversed(chain.items()):
                 flow = VOCABULARY[w].undo(flow, sig.rate_hz, p)
-        band = PLATEAU_NOISE * noise_lpm(flow)
+            # the sensor's noise as the undoing passes it on, not as read off the flow it gives: a
+            # delay between samples interpolates two rows, which correlates neighbours, and the
+            # second differences then read half the noise each row keeps (a 50 ms delay at 50 Hz:
+            # plateau rows dipping below a band so narrowed were fitted as open, and the delay and
+            # clip at their true settings fitted 1.3 x the noise where 40 or 60 ms fitted 1.09 x)
+            noise *= undo_gain(chain, sig.rate_hz)
+        band = PLATEAU_NOISE * noise
         reach = np.where(self.root.predict(sig, {}) >= c, c - band, c)
         return flow >= c - band, reach
 
@@ -540,6 +547,17 @@ def clip(q: np.ndarray, clip_hi: float | None, floor: bool) -> np.ndarray:
     if clip_hi is not None:
         q = np.minimum(q, clip_hi)
     return np.maximum(q, 0.0) if floor else q
+
+
+def undo_gain(chain: dict, rate_hz: float) -> float:
+    """RMS gain of white noise through the undoing of ``chain``'s time response (each word's
+    :meth:`Word.undo` in reverse order, all linear): the norm of its impulse response."""
+    half = int(np.ceil(rate_hz * max([VOCABULARY[w].lateness_s(p, rate_hz) or 0.0 for w, p in chain.items()], default=0.0))) + 8
+    h = np.zeros(2 * half + 1)
+    h[half] = 1.0
+    for w, p in reversed(chain.items()):
+        h = VOCABULARY[w].undo(h, rate_hz, p)
+    return float(np.sqrt(np.sum(h ** 2)))
 
 
 def build(base: Base, sig: Signals, chain: dict, memory: bool = False, static: bool = False,
