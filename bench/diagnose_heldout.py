@@ -103,26 +103,30 @@ def run(p: G.Probe):
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--start", type=int, required=True, help="first probe index")
+    ap.add_argument("--start", type=int, default=0, help="first probe index")
     ap.add_argument("--count", type=int, default=48)
+    ap.add_argument("--indices", default="", help="comma-separated probe indices (instead of a range)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--show", action="store_true", help="list the probes and stop")
     args = ap.parse_args()
-    todo = [probe(i) for i in range(args.start, args.start + args.count)]
+    index = ([int(i) for i in args.indices.split(",")] if args.indices
+             else list(range(args.start, args.start + args.count)))
+    todo = [probe(i) for i in index]
     if args.show:
-        for i, p in enumerate(todo, args.start):
+        for i, p in zip(index, todo):
             print(f"{i:5d} {p.label()}")
         return 0
     t0 = time.perf_counter()
     right = false = 0
     with ProcessPoolExecutor(args.workers) as ex:
-        for i, (p, wrong, found, ni, s) in enumerate(ex.map(run, todo, chunksize=1), args.start):
+        for i, (p, wrong, found, ni, s) in zip(index, ex.map(run, todo, chunksize=1)):
             right += not wrong
             false += any(w.startswith("false ") for w in wrong)
             print(f"{'WRONG' if wrong else 'ok   '} {i:5d} {p.label()}  ({s:.0f} s)\n      found: {found}"
                   + (f"\n      not identifiable: {', '.join(ni)}" if ni else "")
                   + "".join(f"\n      !! {w}" for w in wrong), flush=True)
-    print(f"\nheld-out probes {args.start}-{args.start + args.count - 1}: {right}/{len(todo)} right, "
+    what = args.indices or f"{args.start}-{args.start + args.count - 1}"
+    print(f"\nheld-out probes {what}: {right}/{len(todo)} right, "
           f"{false} with a false finding, in {time.perf_counter() - t0:.0f} s")
     return 0
 
