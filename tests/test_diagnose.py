@@ -654,6 +654,36 @@ def test_a_staircase_at_the_valves_memory_epochs_is_not_read_as_heat():
     assert memory_epochs(work_signals(_plant_recording({}, "paper_identification", 60.0), None)).shape[1] == 0
 
 
+def test_a_memory_epochs_offset_holds_on_every_row_a_warm_coil_is_explained_beyond():
+    # the offset a fitted PI's memory epoch adds is flow the PI passes on any row, shut ones too:
+    # zeroed where the reference has the valve shut, it was a step on the open rows only, near-collinear
+    # with the offset and with a warm coil's slow rise (cond 2e8), and a coil 34.5 K warm was missed
+    from models.diagnose.design import build, fit_baseline, memory_epochs, memory_start_s
+    from models.diagnose.folds import make_folds
+    from models.diagnose.signals import running_rows, work_signals
+
+    import diagnose_gross as G
+
+    rec, rest = running_rows(G.record(G.Probe("plant", (("coil_heating", 34.5),), "breaths", 10226, 0.78)))
+    sig = work_signals(rec, rest)
+    root = fit_baseline(sig, make_folds(sig.t_s, start_s=memory_start_s(sig)))
+    d = build(root, sig, {"coil_heating": {"rise55_k": 30.0, "tau_s": 180.0, "start": 0.0}}, memory=True)
+    epochs = memory_epochs(sig)
+    cols = d.X[:, [i for i, n in enumerate(d.names) if n == "memory"]]
+    assert epochs.shape[1] >= 1 and cols.shape == epochs.shape
+    np.testing.assert_array_equal(cols, epochs)
+
+
+@pytest.mark.slow  # ~25 s
+def test_a_warm_coil_on_breaths_is_named_beside_the_valves_memory_epochs():
+    import diagnose_gross as G
+
+    d = diagnose_response(G.record(G.Probe("plant", (("coil_heating", 34.5),), "breaths", 10226, 0.78)))
+    assert [f.effect for f in d.findings] == ["coil_heating"]
+    assert d.findings[0].params["rise55_k"] == pytest.approx(34.5, rel=0.25)
+    assert d.findings[0].holdout_rmse_after < d.findings[0].holdout_rmse_before
+
+
 def test_a_memory_epoch_a_fold_holds_out_whole_does_not_vouch_for_a_heating_beside_a_clip():
     # breaths resting at 30 % on a valve clipped at 139 L/min, no coil heating: the breaths before the
     # first growth of their top (the valve's widest operators still holding the first breath's top,

@@ -615,7 +615,11 @@ def build(base: Base, sig: Signals, chain: dict, memory: bool = False, static: b
     # reference's active set (breaths resting at 30 % with a creep of 0.2: the chain's training
     # error 1.40 x the noise floor with the column on every shut row, 1.10 x zeroed on them, 1.08 x
     # zeroed on those measured shut)
-    first = 4 if base.refit else 0
+    # the baseline's own columns are not zeroed there: the offset and the memory epochs' offsets are
+    # the flow the fitted PI passes on any row (zeroed on shut rows, an epoch's column was a step on
+    # the open rows only, near-collinear with the offset and a warm coil's slow rise: cond 2e8, and a
+    # coil 34.5 K warm on breaths was missed (plant_sim, seed 10226; found at 34.6 K now))
+    first = 4 + epochs.shape[1] if base.refit else 0
     clip_hi = clip_of(chain)
     shut = base.shut(sig)
     floor = bool(shut.any())
