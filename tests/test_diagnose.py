@@ -1059,6 +1059,21 @@ def test_gross_asymmetry_ten_times_the_loop():
     assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(10.0, rel=0.3)
 
 
+@pytest.mark.slow  # ~60 s
+def test_gross_asymmetry_beside_a_clip_is_screened_at_its_size():
+    # x8 beside a clip at 148 L/min on the paper sweep: with the clip named, the PI refitted with the
+    # first-order lift column bends its own loop towards the gross one, the column gained 1.7 % of
+    # the training error (under its 3 % margin) and the exact law was never refined: the asymmetry
+    # was missed. Its exact law is screened at gross lifts too (:meth:`Word.sized`), and refined from
+    # the lift the screen chose, it is named within the bench's tolerance (x0.65-1.35)
+    G = pytest.importorskip("diagnose_gross")
+    p = G.Probe("plant", (("asymmetric_hysteresis", 8.0), ("saturation", 148.0)), "paper", 20001, 0.7)
+    d = diagnose_response(G.record(p))
+    assert G.judge(p, d) == []
+    named = {f.effect: f for f in d.findings}
+    assert named["asymmetric_hysteresis"].params["extra_width"] == pytest.approx(8.0, rel=0.35)
+
+
 def test_asymmetry_on_breaths_resting_below_the_opening_is_not_identifiable():
     # breaths step down from their plateau to 30 %, below the valve's opening, within one sample: the
     # descending branch is never sampled open, so no size of asymmetry changes the flow. Said so,
