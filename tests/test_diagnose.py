@@ -1034,6 +1034,39 @@ def test_a_valve_the_model_file_does_not_quite_describe_names_no_lag():
     assert not {f.effect for f in d.findings} & set(DYNAMIC)
     for w in DYNAMIC:
         assert "against this model file" in d.model["not_identifiable"][w]
+    # nor is the model's misfit read as a sensor offset (0.49 L/min) on a valve never seen shut
+    assert d.findings == []
+    assert "no larger than the model file's own misfit" in d.model["not_identifiable"]["sensor_offset"]
+
+
+def test_an_offset_no_shut_row_reads_must_exceed_the_model_files_misfit_of_the_loading_curve():
+    # the foreign valve on triangles, never shut, held against its model file, which misses its loading
+    # curve by about 1 L/min RMS from one duty to another: effect free, the constant it reads (0.5 L/min)
+    # is within that misfit and cannot be told from a zero offset; an offset of 2.5 L/min can
+    from models.diagnose import detectors as D
+
+    for offset_lpm, told in ((0.0, False), (2.5, True)):
+        sig, folds, cur = _foreign_against_the_model_file((("sensor_offset", offset_lpm),) if offset_lpm else (),
+                                                          "triangles")
+        why = D._level_within_misfit("sensor_offset", {}, D.Selection(reference=cur), sig, folds)
+        assert (why is None) == told, why
+
+
+def test_a_coil_warming_from_cold_explains_more_than_a_model_files_misfit_of_the_loading_curve():
+    # held against a model file a coil's heating must explain more than a free static curve of the duty
+    # (the model's misfit, a constant included): a coil warm from the first row at the duty's mean is a
+    # scale of the duty, which the curve takes; a coil warming from cold drifts in time, which it cannot
+    from models.diagnose import detectors as D
+    from models.diagnose import load_margins
+
+    assert VOCABULARY["coil_heating"].beyond_curve
+    heat = {"rise55_k": 30.0, "tau_s": 150.0, "start": 0.0}
+    sig, folds, cur = _foreign_against_the_model_file((("coil_heating", 30.0),), "chirp")
+    assert D._static_misfit("coil_heating", {}, {"coil_heating": heat}, cur, cur, sig, folds, load_margins()) is None
+    sig, folds, cur = _foreign_against_the_model_file((), "chirp")
+    warm = {"rise55_k": 1.0, "tau_s": 230.0, "start": 1.0}
+    why = D._static_misfit("coil_heating", {}, {"coil_heating": warm}, cur, cur, sig, folds, load_margins())
+    assert why is not None and "on each branch" not in why
 
 
 @pytest.mark.parametrize("offset_lpm", [-2.0, 0.0])
