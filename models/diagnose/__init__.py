@@ -215,7 +215,7 @@ def diagnose_response(rec: Recording, model: FittedModel | None = None, margins:
                       "plausible": {f.effect: VOCABULARY[f.effect].plausible for f in findings},
                       "caveats": {f.effect: c for f in findings if (c := VOCABULARY[f.effect].caveat(f.params))},
                       "holdout": metrics(y[hold], augmented[hold]).to_dict()},
-        "rejected": {w: explain(d) for w, d in last.items() if w not in named},
+        "rejected": {w: explain(d) for w, d in last.items() if w not in named and w not in sel.nuisance},
         "not_identifiable": {**sel.not_identifiable, **_invisible(sel, named, base, sig, folds),
                              **_absorbed(sel, named, base, sig, (y - augmented)[hold])},
         "trace": [d.to_dict() for d in trace],
@@ -312,6 +312,8 @@ def _findings(sel: Selection, words: list, fits: "_ChainFits", raw: Signals, hol
     full, params = fits.predict(chain), fits.params(chain)
     ranked = []
     for w in words:
+        if w in sel.nuisance:  # in the model, not a finding (:attr:`Selection.nuisance`)
+            continue
         step = next(s for s in sel.steps if s.word == w)
         prev = fits.predict(fits.chain(v for v in words if v != w))
         alt = sel.alternatives.get(w)

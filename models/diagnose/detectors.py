@@ -828,6 +828,12 @@ class Selection:
         Word of :data:`DYNAMIC` -> why it was last refused or dropped held against a model file: it
         explains no more than the model's misfit of the valve's loop (:func:`_static_misfit`). One not
         named in the end is not identifiable against that model file (:func:`select_effects`).
+    nuisance : set
+        Words of the chain kept in the model but not reported: a sensor offset no shut row reads, within
+        the model file's own misfit of the loading curve (:func:`_level_within_misfit`), is a free
+        constant of the baseline, as a PI fitted on the recording has its offset c (Eq. 4). Dropped,
+        the other words took its constant up (a creep of 0.17 beside an offset of -1.16 L/min on a
+        chirp read 0.06; an asymmetry of extra width 0.2 named beside a clip and a supply).
     """
 
     chain: dict = field(default_factory=dict)
@@ -838,6 +844,7 @@ class Selection:
     alternatives: dict = field(default_factory=dict)
     reference: Base | None = None
     loop_misfit: dict = field(default_factory=dict)
+    nuisance: set = field(default_factory=set)
 
     def last(self) -> dict:
         """Word -> its last decision."""
@@ -1807,10 +1814,10 @@ def _level_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Mar
         y = sig.flow_lpm
         if not inside:
             why = _level_within_misfit(word, others, sel, sig, folds) if word in sel.chain else None
-            if why is None:
-                continue
-            sel.not_identifiable[word] = why
-            return _drop_level(word, others, sel, sig, folds, margins, rnd, why)
+            if why is not None:
+                sel.not_identifiable[word] = why
+                sel.nuisance.add(word)
+            continue
 
         def level(chain: dict) -> tuple:
             d = build(ref, sig, carried(inside[0], sig, {**chain, word: {}}))
@@ -1887,7 +1894,8 @@ def _level_within_misfit(word: str, others: dict, sel: Selection, sig: Signals, 
     return (f"not identifiable against this model file: no rows read its level by themselves (a shut valve's zero), "
             f"and the constant it reads ({level:.3g} {unit}) is no larger than the model file's own misfit of the "
             f"valve's loading curve (a free static curve of the duty beside the other words spreads {spread:.3g} "
-            f"{unit} over the rows): a level within what the model gets wrong from one duty to another")
+            f"{unit} over the rows): a level within what the model gets wrong from one duty to another, kept as a "
+            f"free constant of the baseline and not reported")
 
 
 def _accept(c: Candidate, chain: dict, cur: Base, sig: Signals, folds: Folds, noise: float,

@@ -138,8 +138,8 @@ class Word:
         (:func:`models.diagnose.detectors._static_after_search`): a coil warm from the first row whose
         temperature the duty's mean holds is a scale of the duty, a static misfit of the loading curve. A
         sensor offset of -1.0 L/min on a chirp that a foreign valve's model file misses by 1.26 L/min RMS
-        is not identifiable (:func:`models.diagnose.detectors._level_within_misfit`); dropped, the
-        constant was named a coil 0.9 K warm from the start. A warming's drift from a cold start is what
+        is not identifiable (:func:`models.diagnose.detectors._level_within_misfit`); left out of the
+        chain, its constant was named a coil 0.9 K warm from the start. A warming's drift from a cold start is what
         the curve cannot take.
     """
 
