@@ -1402,3 +1402,22 @@ def test_undoing_a_time_response_passes_white_noise_by_its_impulse_norm():
     for w, p in reversed(chain.items()):
         undone = VOCABULARY[w].undo(undone, rate, p)
     assert undo_gain(chain, rate) == pytest.approx(np.std(undone[200:-200]), rel=0.01)
+
+
+def test_an_asymmetry_alone_is_refined_from_a_lift_of_every_threshold_too():
+    """x3.18 alone on a mixed recording resting below the valve's opening, no model file (the
+    held-out probe 911): the exact law was refined from its best unrefined start only, a widening of
+    each descending threshold in proportion to it (widen 2), into that valley's floor (widen 2.3, the
+    PI refitted under it shrinking its own loop), with more training error than a lift of every
+    threshold alone (plant_sim's law) and 2.4 L/min held out against the lift's 1.0 and the
+    baseline's 1.75; its correction largest where it ran off (a held-out step down from 61 % to 44 %,
+    7 L/min high), it was refused as another law's residual. The best start of each valley is refined
+    (:meth:`Word.basin`), and the lift alone, at the lower end of the widening, is a setting of the
+    law, not a refinement run off its box: the asymmetry is named at its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("asymmetric_hysteresis", 3.18),), "mixed", 10911, 0.74)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+    assert [f.effect for f in d.findings] == ["asymmetric_hysteresis"]
+    w = VOCABULARY["asymmetric_hysteresis"]
+    assert w.basin({"widen": 1e-3, "lift": 0.1}) != w.basin({"widen": 2.0, "lift": 0.1})

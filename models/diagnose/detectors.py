@@ -571,7 +571,9 @@ def _multistart(w: Word, chain: dict, starts: list, base: Base, sig: Signals, fo
     groups = {}
     for p in starts:
         # (and each set of refined parameters: a heating with and without its valve's input floor)
-        key = (tuple(sorted((k, v) for k, v in p.items() if k not in box)), tuple(sorted(k for k in p if k in box)))
+        # (and each of the law's valleys, :meth:`Word.basin`)
+        key = (tuple(sorted((k, v) for k, v in p.items() if k not in box)), tuple(sorted(k for k in p if k in box)),
+               w.basin(p))
         groups.setdefault(key, []).append(p)
     refined = [p for g in groups.values() for p in refined_best(g)] + [refine(w.word, chain, p, base, sig, folds)
                                                                        for p in own]
@@ -663,9 +665,9 @@ def _holds(w: Word, params: dict, chain: dict, base: Base, sig: Signals, folds: 
 
 def _inside(params: dict, box: dict, settled: tuple = ()) -> bool:
     """Whether every parameter of ``params`` refined within ``box`` stays off its bounds (but those
-    whose ends are settings of the law, ``settled``)."""
-    return all(lo * AT_BOUND < params[k] < hi / AT_BOUND for k, (lo, hi) in box.items()
-               if k in params and k not in settled)
+    whose ends are settings of the law, ``settled``: a name, both ends; ``(name, "low")``, the lower)."""
+    return all((lo * AT_BOUND < params[k] or (k, "low") in settled) and params[k] < hi / AT_BOUND
+               for k, (lo, hi) in box.items() if k in params and k not in settled)
 
 
 def _at_upper_bound(w: Word, params: dict, sig: Signals, base: Base) -> str | None:
