@@ -1421,3 +1421,14 @@ def test_an_asymmetry_alone_is_refined_from_a_lift_of_every_threshold_too():
     assert [f.effect for f in d.findings] == ["asymmetric_hysteresis"]
     w = VOCABULARY["asymmetric_hysteresis"]
     assert w.basin({"widen": 1e-3, "lift": 0.1}) != w.basin({"widen": 2.0, "lift": 0.1})
+
+
+def test_a_gross_asymmetry_is_screened_at_its_size_against_a_pi_fitted_on_the_recording_only():
+    # against a model file the model's own misfit of a foreign valve's loop is as gross as the sizes
+    # screened (a foreign valve on breaths beside a 44 K coil was named an extra width of 2.35 from them)
+    from models.diagnose.design import fit_baseline
+
+    sig, folds, cur = _foreign_against_the_model_file((), "breaths")
+    word = VOCABULARY["asymmetric_hysteresis"]
+    assert word.sized(sig, cur, {}) == []
+    assert len(word.sized(sig, fit_baseline(sig, folds), {})) >= 2
