@@ -162,7 +162,7 @@ class Base:
         if self.refit:
             return self._cached(("q", id(sig), key), lambda: self.model.y_scale.from_unit(
                 self.regressors(sig, chain) @ self.shape.w + self.shape.offset)
-                + (0.0 if self.seat is None else self.seat[1] * seat_line(x, self.seat[0])))
+                + (0.0 if self.seat is None else self.seat[1] * seat_line(seated_input(sig, chain), self.seat[0])))
         if any(a[:2]) and isinstance(self.model.core, PIModel):
             # the model file run as the simulated valve runs it (its input held to the identified
             # range, closing below it, no reverse flow), plus what the lifted descending thresholds
@@ -327,12 +327,31 @@ def inputs(sig: Signals, chain: dict) -> tuple:
     key = tuple(key)
     x = sig.duty_pct
     if warm is not None:
-        # the last effective duty is kept: an exact-law refinement asks for it several times per evaluation
+        # the last two effective duties are kept (the chain's, and the same before its input floor,
+        # :func:`seated_input`): an exact-law refinement asks for them several times per evaluation
         x = sig.cache.get(key)
         if x is None:
-            sig.cache.clear()
+            while len(sig.cache) >= 2:
+                del sig.cache[next(iter(sig.cache))]
             x = sig.cache[key] = warm[0].effective_duty(sig, warm[1])
     return x, a, key
+
+
+def input_floor(chain: dict) -> tuple:
+    """``(floor_pct, chain without it)``: the duty (%) below which a law of ``chain`` holds the
+    hysteresis core's input (:meth:`Word.floor`: a warm coil's valve seated on the duty the magnetics
+    see), ``None`` and ``chain`` when none does."""
+    for w, p in chain.items():
+        floor, rest = VOCABULARY[w].floor(p)
+        if floor is not None:
+            return floor, {**chain, w: rest}
+    return None, chain
+
+
+def seated_input(sig: Signals, chain: dict) -> np.ndarray:
+    """The duty the magnetics see under ``chain`` (%) before any input floor: what a seat's line
+    (:func:`seat_line`) closes along below it."""
+    return inputs(sig, input_floor(chain)[1])[0]
 
 
 def major_loop_half_width(r: np.ndarray, w: np.ndarray, n: int = 2001) -> float:
@@ -1209,11 +1228,20 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray, untold: bool
         # file does)
         H = np.column_stack([H, at_sensor(np.ones(len(sig)), sig, rest) - 1.0])
     seat = base.root.seat
+    floor = input_floor(chain)[0]
+    if floor is not None and (seat is None or floor > seat[0]):
+        # a warm coil's valve held at its input floor is seated there, on the duty the magnetics see:
+        # below it the flow closes along a line as a seated baseline's does (without it, the flow held
+        # at the floor's: plant_sim's valve, seated at 38 %, 31 K warm on random holds down to 34 %,
+        # fitted at its true heating 7 x the noise). A baseline's seat above the floor holds the
+        # input first; one below it was placed on the commanded duty under the warm coil (a creep
+        # beside that heating: a seat at 36 %, and the line from there ran through the held rows)
+        seat = (floor, 0.0 if seat is None else seat[1])
     line = None
     if seat is not None:
         # the line below the seat, refitted with the PI on the duty the magnetics see (where the rows
         # the fit may use reach below the seat; else kept)
-        line = at_sensor(seat_line(inputs(sig, chain)[0], seat[0]), sig, rest)
+        line = at_sensor(seat_line(seated_input(sig, chain), seat[0]), sig, rest)
         if np.count_nonzero(line[fr & ~shut]) >= MIN_SEAT_ROWS:
             H = np.column_stack([H, line / ys.half_range])
         else:

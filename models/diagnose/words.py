@@ -224,8 +224,9 @@ class Word:
 
     def at_rest(self, sig: Signals, params: dict, base) -> dict | None:
         """The setting of the law that acts only where the valve rests shut by itself at the
-        recording's lowest duty (``base.shut``: none for a model file), or ``None`` (the law does not
-        act there, or the valve is open at its rest): ``params`` must explain more than it
+        recording's lowest duty (``base.shut``: none for a model file), or only as the valve's own seat
+        does (a heating's input floor with the coil cold), or ``None`` (the law does not act there, or
+        the valve is open at its rest): ``params`` must explain more than it
         (:func:`models.diagnose.detectors._beyond_rest`)."""
         return None
 
@@ -257,6 +258,12 @@ class Word:
         the law joins), each refined and compared with ``params`` once the other words are named
         (:func:`models.diagnose.detectors._refined_beside`); empty by default."""
         return []
+
+    def floor(self, params: dict) -> tuple:
+        """``(floor_pct, params without it)``: the duty (%) below which the law holds the hysteresis
+        core's input (a seat on the duty the magnetics see, :func:`models.diagnose.design.unbend`),
+        ``None`` and ``params`` (default) when it holds none."""
+        return None, params
 
     def smoothed(self, sig: Signals, params: dict) -> dict:
         """``params`` with the law's hard edge smoothed, for the search of a law on the duty the
@@ -691,13 +698,24 @@ class CoilHeating(Word):
                   for r in rises for t in g["tau_s"] for s in g["start"]]
         if not base.refit:
             return starts
-        held = [{**p, "floor_pct": float(np.min(sig.duty_pct))} for p in starts]
-        if self._seated(sig, base):
-            # a valve shut at the lowest commanded duty has its input held there (:meth:`_seated`)
-            return held
-        # and each with the valve's input held at the lowest commanded duty, from where the
-        # refinement places the floor (:meth:`effective_duty`)
-        return starts + held
+        # each with the valve's input held (:meth:`effective_duty`): at the lowest commanded duty, and
+        # at seats above it that a warm coil's effective duty falls below (:meth:`bounds`), each a
+        # valley of its own (:meth:`basin`)
+        lowest = float(np.min(sig.duty_pct))
+        floors = np.linspace(lowest, self._top_floor(sig), FLOOR_STARTS)
+        seat = base.root.seat
+        if seat is not None:
+            # a baseline's seat holds the input first: a floor below it holds nothing more
+            # (:func:`models.diagnose.design.unbend`)
+            floors = [lowest] + [f for f in floors[1:] if f > seat[0]]
+        held = [{**p, "floor_pct": float(f)} for p in starts for f in floors]
+        # a valve shut at the lowest commanded duty has its input held (:meth:`_seated`); else also not
+        return held if self._seated(sig, base) else starts + held
+
+    def basin(self, params):
+        # the rows a floor holds change only where a held level's effective duty crosses it: the
+        # training error is a staircase in the floor, on which a refinement stays where it starts
+        return params.get("floor_pct")
 
     @staticmethod
     def _seated(sig: Signals, base) -> bool:
@@ -732,8 +750,20 @@ class CoilHeating(Word):
         if self._seated(sig, base):
             return box
         lowest = float(np.min(sig.duty_pct))
-        # the floor from the lowest commanded duty down to below every effective duty the law reaches
-        return {**box, "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), lowest)}
+        # the floor from below every effective duty the law reaches up to a seat above the lowest
+        # commanded duty (:data:`models.diagnose.design.SEAT_SPAN` of the way to the highest, as a
+        # baseline's seat is sought): a seat on the duty the magnetics see that a cold coil's lowest
+        # duty reaches, a warm one's not (plant_sim's valve, seated at 38 %, on holds down to 34 %)
+        return {**box, "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), self._top_floor(sig))}
+
+    @staticmethod
+    def _top_floor(sig: Signals) -> float:
+        """Highest input floor (%) the law may hold: :data:`models.diagnose.design.SEAT_SPAN` of the way
+        from the lowest commanded duty to the highest."""
+        from .design import SEAT_SPAN
+
+        lowest = float(np.min(sig.duty_pct))
+        return lowest + SEAT_SPAN * (float(np.max(sig.duty_pct)) - lowest)
 
     def rise_k(self, sig: Signals, params: dict) -> np.ndarray:
         """Coil temperature rise since the first sample (K) times the copper-law ratio: measured or modelled."""
@@ -762,6 +792,49 @@ class CoilHeating(Word):
             return None
         x = fx.effective_duty(sig.duty_pct, self.rise_k(sig, params))
         return np.maximum(x, params["floor_pct"]) if "floor_pct" in params else x
+
+    def floor(self, params):
+        if "floor_pct" not in params:
+            return None, params
+        return float(params["floor_pct"]), {k: v for k, v in params.items() if k != "floor_pct"}
+
+    def at_rest(self, sig, params, base):
+        # a floor above the lowest commanded duty holds rows a cold coil's duty reaches: the valve seated
+        # there, a baseline's seat on the duty the magnetics see (:func:`models.diagnose.design.unbend`),
+        # whatever the coil's warmth. The warming must explain more than the seat alone: a dead zone at
+        # 36 % on ramps over 35.5-72 % was read as a coil 0.2 K warm held at 37.9 %, the seat's line
+        # taking up the jump
+        # (the seat where the warm coil's floor sits on the commanded duty on average: a coil warm from the
+        # start is a scale of the duty the PI takes up, and a sines' jump at 36 % was read as 4.2 K warm
+        # from the start held at 37.4 %, the commanded 38 %)
+        if params.get("floor_pct", -np.inf) <= float(np.min(sig.duty_pct)) + 1e-6 or "rise55_k" not in params:
+            return None
+        warm = 1.0 + fx.ALPHA_CU_PER_K * float(np.mean(self.rise_k(sig, params)))
+        return {**params, "rise55_k": 0.0, "start": 0.0, "floor_pct": params["floor_pct"] * warm}
+
+    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
+        if sig.coil_temp_c is not None:
+            r = params.get("copper_law_ratio", 1.0)
+            if not 0.3 <= r <= 3.0:
+                return f"the measured coil temperature explains it only at {r:.3g} x copper's 0.393 %/K"
+            return None
+        floor, rest = self.floor(params)
+        if after_lpm is None or floor is None or floor <= float(np.min(sig.duty_pct)) + 1e-6:
+            return None
+        from .design import shut_rows
+
+        # a floor above the lowest commanded duty is the valve's seat (:meth:`at_rest`), and below it the
+        # flow closes along a line to where the valve really shuts: on the rows it holds where the model
+        # passes flow, the valve must be open. A jump to zero flow (a dead zone) is not a seat: held at
+        # 44.5 % beside a foreign valve's cracking duty of 46.6 %, a third of those rows measured shut
+        # (a true seat's: 1 %)
+        line = (self.effective_duty(sig, rest) < floor) & (after_lpm > 3.0 * noise_lpm)
+        shut = float(np.mean(shut_rows(sig.flow_lpm)[line])) if line.any() else 0.0
+        if shut > MAX_SHUT_ON_SEAT_LINE:
+            return (f"held at {floor:.3g} % of effective duty, the valve closing below it along a seat's line, "
+                    f"{100 * shut:.0f} % of the rows the line passes flow on measure it shut (at most "
+                    f"{100 * MAX_SHUT_ON_SEAT_LINE:.0f} %): the flow stops with a jump there, not along a seat")
+        return None
 
     def held(self, sig, params, base):
         if "floor_pct" not in params or self._seated(sig, base):
@@ -813,13 +886,6 @@ class CoilHeating(Word):
                 f"drifts along the duty's thermal history by more than its coil resistance explains (a warmer "
                 f"ambient, a magnet or spring that weakens with heat)")
 
-    def support(self, sig, params, before_lpm, noise_lpm, chain=None, extrapolated=False, after_lpm=None, fixed=False):
-        if sig.coil_temp_c is None:
-            return None
-        r = params.get("copper_law_ratio", 1.0)
-        if not 0.3 <= r <= 3.0:
-            return f"the measured coil temperature explains it only at {r:.3g} x copper's 0.393 %/K"
-        return None
 
 
 def thermal_fit(sig: Signals) -> dict:
@@ -929,6 +995,14 @@ class TransportDelay(Word):
 
     def with_lateness(self, params, lateness_s, rate_hz):
         return {**params, "delay_s": float(lateness_s)} if lateness_s > 0 else None
+
+
+#: Largest share of the rows a heating's seat line passes flow on (below its input floor) that may
+#: measure the valve shut (:meth:`CoilHeating.support`).
+MAX_SHUT_ON_SEAT_LINE = 0.1
+#: Input floors a heating's refinement starts from, from the lowest commanded duty up to a seat above
+#: it (:meth:`CoilHeating.restarts`).
+FLOOR_STARTS = 4
 
 
 #: A dead zone's edge is smoothed, for the search of a heating beside it, over the duty a coil this
