@@ -1229,13 +1229,15 @@ def unbend(base: Base, sig: Signals, chain: dict, rows: np.ndarray, untold: bool
         H = np.column_stack([H, at_sensor(np.ones(len(sig)), sig, rest) - 1.0])
     seat = base.root.seat
     floor = input_floor(chain)[0]
-    if floor is not None and (seat is None or floor > seat[0]):
-        # a warm coil's valve held at its input floor is seated there, on the duty the magnetics see:
-        # below it the flow closes along a line as a seated baseline's does (without it, the flow held
-        # at the floor's: plant_sim's valve, seated at 38 %, 31 K warm on random holds down to 34 %,
-        # fitted at its true heating 7 x the noise). A baseline's seat above the floor holds the
-        # input first; one below it was placed on the commanded duty under the warm coil (a creep
-        # beside that heating: a seat at 36 %, and the line from there ran through the held rows)
+    if floor is not None and floor > float(np.min(sig.duty_pct)) + 1e-6 and (seat is None or floor > seat[0]):
+        # a warm coil's valve held at an input floor above the lowest commanded duty, which a cold coil's
+        # duty reaches, is seated there on the duty the magnetics see: below it the flow closes along a
+        # line as a seated baseline's does (without it, the flow held at the floor's: plant_sim's valve,
+        # seated at 38 %, 31 K warm on random holds down to 34 %, fitted at its true heating 7 x the
+        # noise). A floor no cold duty reaches holds the warm coil's input only, the flow there as at the
+        # floor. A baseline's seat above the floor holds the input first; one below it was placed on the
+        # commanded duty under the warm coil (a creep beside that heating: a seat at 36 %, and the line
+        # from there ran through the held rows)
         seat = (floor, 0.0 if seat is None else seat[1])
     line = None
     if seat is not None:

@@ -1098,8 +1098,6 @@ def _backfit(sel: Selection, sig: Signals, folds: Folds, dropped: bool = False) 
             break
         # a static law placed again moves what the others were refined beside (a lag refined beside
         # a cracking duty placed under its earlier phase took up the misplaced jump): once more
-    if _drift_restart(sel, sig, folds):
-        changed = True
     if _joint_restart(sel, sig, folds):
         changed = True
     _steps_refitted(sel, sig, folds, changed)
@@ -1214,29 +1212,6 @@ def _kept(words: list, new: dict, sel: Selection, sig: Signals, folds: Folds) ->
     for step in sel.steps:
         step.params = sel.chain[step.word]
     return True
-
-
-def _drift_restart(sel: Selection, sig: Signals, folds: Folds) -> bool:
-    """The exact law of the chain on the duty the magnetics see (a coil's warming) refined jointly with the
-    screened time constant of each word that drifts along the recording (:attr:`Word.drifts`, a creep;
-    :func:`_screened_range`); kept where the training error falls beyond a tie (:func:`_tied_chain`) and
-    every law stays physical and resolved. Updates ``sel``; returns whether it changed.
-
-    Both move the flow slowly after each change of the duty, and refined in turn each stops where the
-    other holds it: a coil 40.8 K warm (180 s) beside a creep of 0.13 (20 s) on the paper's sweep was
-    read as 29.8 K on 108 s beside a creep relaxing over 13.9 s, neither moving with the other held, its
-    held-out error 9 % above the true settings'; refined together from there, 40.2 K on 181 s and 19.5 s.
-    """
-    root = sel.reference
-    duty = [w for w, p in sel.chain.items() if VOCABULARY[w].input_side == "duty" and VOCABULARY[w].is_exact(p)
-            and any(k in p for k in VOCABULARY[w].bounds(sig, root))]
-    screened = tuple(r for w, p in sel.chain.items() if VOCABULARY[w].drifts
-                     for r in _screened_range(VOCABULARY[w], p, sig, root))
-    if not duty or not screened:
-        return False
-    joint = refine_jointly(duty, sel.chain, root, sig, folds, screened=screened)
-    return _kept(duty + sorted({r[0] for r in screened}), _tied_chain(duty, [sel.chain, joint], root, sig, folds),
-                 sel, sig, folds)
 
 
 def refine_jointly(words: list, chain: dict, root: Base, sig: Signals, folds: Folds,

@@ -698,19 +698,20 @@ class CoilHeating(Word):
                   for r in rises for t in g["tau_s"] for s in g["start"]]
         if not base.refit:
             return starts
-        # each with the valve's input held (:meth:`effective_duty`): at the lowest commanded duty, and
-        # at seats above it that a warm coil's effective duty falls below (:meth:`bounds`), each a
-        # valley of its own (:meth:`basin`)
         lowest = float(np.min(sig.duty_pct))
+        if not self._seated(sig, base):
+            # each also with the valve's input held at the lowest commanded duty, from where the
+            # refinement places the floor (:meth:`effective_duty`, :meth:`bounds`)
+            return starts + [{**p, "floor_pct": lowest} for p in starts]
+        # a valve shut at the lowest commanded duty has its input held (:meth:`_seated`): there, and at
+        # seats above it that a cold coil's lowest duty reaches and a warm one's effective duty falls
+        # below (plant_sim's valve, seated at 38 %, on holds down to 34 %), each a valley of its own
+        # (:meth:`basin`); a baseline's seat holds the input first, and a floor below it holds nothing
+        # more (:func:`models.diagnose.design.unbend`)
         floors = np.linspace(lowest, self._top_floor(sig), FLOOR_STARTS)
         seat = base.root.seat
-        if seat is not None:
-            # a baseline's seat holds the input first: a floor below it holds nothing more
-            # (:func:`models.diagnose.design.unbend`)
-            floors = [lowest] + [f for f in floors[1:] if f > seat[0]]
-        held = [{**p, "floor_pct": float(f)} for p in starts for f in floors]
-        # a valve shut at the lowest commanded duty has its input held (:meth:`_seated`); else also not
-        return held if self._seated(sig, base) else starts + held
+        floors = [lowest] + [float(f) for f in floors[1:] if seat is None or f > seat[0]]
+        return [{**p, "floor_pct": f} for p in starts for f in floors]
 
     def basin(self, params):
         # the rows a floor holds change only where a held level's effective duty crosses it: the
@@ -750,16 +751,16 @@ class CoilHeating(Word):
         if self._seated(sig, base):
             return box
         lowest = float(np.min(sig.duty_pct))
-        # the floor from below every effective duty the law reaches up to a seat above the lowest
-        # commanded duty (:data:`models.diagnose.design.SEAT_SPAN` of the way to the highest, as a
-        # baseline's seat is sought): a seat on the duty the magnetics see that a cold coil's lowest
-        # duty reaches, a warm one's not (plant_sim's valve, seated at 38 %, on holds down to 34 %)
-        return {**box, "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), self._top_floor(sig))}
+        # the floor from the lowest commanded duty down to below every effective duty the law reaches: a
+        # valve that passes flow at its lowest commanded duty is seated below it (a floor refined up to
+        # 43 % on the paper's sweep from 38 % took up an asymmetry's widening there)
+        return {**box, "floor_pct": (lowest / (1.0 + fx.ALPHA_CU_PER_K * LAW_RISE55_K), lowest)}
 
     @staticmethod
     def _top_floor(sig: Signals) -> float:
-        """Highest input floor (%) the law may hold: :data:`models.diagnose.design.SEAT_SPAN` of the way
-        from the lowest commanded duty to the highest."""
+        """Highest input floor (%) a seated valve's law may hold (:meth:`restarts`):
+        :data:`models.diagnose.design.SEAT_SPAN` of the way from the lowest commanded duty to the highest,
+        as a baseline's seat is sought."""
         from .design import SEAT_SPAN
 
         lowest = float(np.min(sig.duty_pct))
