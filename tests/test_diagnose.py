@@ -1088,6 +1088,28 @@ def test_an_offset_no_shut_row_reads_must_exceed_the_model_files_misfit_of_the_l
         assert (why is None) == told, why
 
 
+def test_an_offset_a_model_file_misses_the_valves_loop_around_is_not_identifiable_rather_than_absent():
+    """A foreign valve widened x5.4 with an offset of -1.0 L/min, on triangles never shut, held against
+    its model file: the file's thresholds widened in proportion miss the valve's loop by three times the
+    noise, the asymmetry's lift takes the offset up, and the constant then reads +0.1 L/min. The offset
+    is said to be not identifiable, not absent; the asymmetry is named."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("asymmetric_hysteresis", 5.35), ("sensor_offset", -1.02)), "triangles", 11372, 0.46)
+    d = diagnose_response(G.record(probe), F.model_file())
+    assert G.judge(probe, d) == []
+    assert "asymmetric_hysteresis" in {f.effect for f in d.findings}
+    assert "misses the recording" in d.model["not_identifiable"]["sensor_offset"]
+
+
+def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
+    # plant_sim's valve against its own model file on random holds above its seat: no row reads the
+    # sensor's zero, but the model explains the recording to the noise, so a constant would show: the
+    # offset is absent, not "not identifiable"
+    d = diagnose_response(S.record(S.Case((), "random_holds", 7, 0.5)), load_model(S.MODEL_JSON))
+    assert d.findings == []
+    assert "sensor_offset" not in d.model["not_identifiable"]
+
+
 def test_a_coil_warming_from_cold_explains_more_than_a_model_files_misfit_of_the_loading_curve():
     # held against a model file a coil's heating must explain more than a free static curve of the duty
     # (the model's misfit, a constant included): a coil warm from the first row at the duty's mean is a

@@ -40,7 +40,7 @@ from ..model import FittedModel
 from ..recording import InputError, Recording
 from .calibrate import Margins, load_margins
 from .design import build, clip, fit_baseline, fit_final, fixed_base, memory_start_s, unbend
-from .detectors import (AMBIGUOUS, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, select_effects,
+from .detectors import (AMBIGUOUS, EXPLAINED, MIN_CORRELATION, MIN_SLOPE, Selection, chain_params, follows, select_effects,
                         without)
 from .folds import Folds, make_folds
 from .residuals import Location, locate, where
@@ -148,10 +148,6 @@ class Diagnosis:
 #: is reported as not identifiable on it.
 VISIBLE = 0.5
 
-
-#: Once the named words are in place, a held-out misfit (RMS) within this factor of the sensor noise
-#: leaves nothing for another law to explain.
-EXPLAINED = 1.1
 
 
 def _rmse(e: np.ndarray) -> float:

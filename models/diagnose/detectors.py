@@ -1790,6 +1790,11 @@ def _loop_masked(sel: Selection) -> None:
         sel.not_identifiable[w] = f"not identifiable against this model file: {why}"
 
 
+#: Once the named words are in place, a misfit (RMS) within this factor of the sensor noise leaves
+#: nothing for another law to explain.
+EXPLAINED = 1.1
+
+
 def _level_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Margins, noise: float,
                         rnd: int) -> str | None:
     """A level word (:attr:`Word.shifts_level`: a sensor offset) held against a model file beside an
@@ -1821,8 +1826,15 @@ def _level_after_search(sel: Selection, sig: Signals, folds: Folds, margins: Mar
         inside = [k for k, p in others.items() if VOCABULARY[k].input_side and VOCABULARY[k].is_exact(p)
                   and any(q in p for q in VOCABULARY[k].bounds(sig, ref))]
         y = sig.flow_lpm
+        if word not in sel.chain:
+            why = _level_unexplained(word, sel, sig, folds, noise)
+            if why is not None:
+                sel.not_identifiable[word] = why
+                continue
         if not inside:
-            why = _level_within_misfit(word, others, sel, sig, folds) if word in sel.chain else None
+            if word not in sel.chain:
+                continue
+            why = _level_within_misfit(word, others, sel, sig, folds)
             if why is not None:
                 sel.not_identifiable[word] = why
                 sel.nuisance.add(word)
@@ -1867,6 +1879,40 @@ def _drop_level(word: str, others: dict, sel: Selection, sig: Signals, folds: Fo
     if sel.steps:
         _backfit(sel, sig, folds, dropped=True)
     return word
+
+
+def _level_unexplained(word: str, sel: Selection, sig: Signals, folds: Folds, noise: float) -> str | None:
+    """Why the level ``word`` (a sensor offset) not named, held against a model file, cannot be said to
+    be absent, or ``None``: no rows read its level by themselves (:meth:`Word.pinned`: a shut valve's
+    zero), and the model file with the named words still misses the recording beyond the noise
+    (:data:`EXPLAINED`) where a free static curve of the duty and a constant are fitted beside them
+    (:func:`models.diagnose.design.static_curve`): a misfit no level explains, which the named words'
+    parameters trade a constant against.
+
+    A foreign valve's loop held against a PI fitted on its staircase, widened x5.4 with an offset of
+    -1.0 L/min on triangles never shut: the model file's thresholds widened in proportion miss the
+    valve's by 1.5 L/min for 0.46 of noise, the asymmetry's lift took the offset up, and the constant
+    then read +0.11 (+0.79 with the widening alone): no offset named, and none could have been sized.
+    """
+    ref, y, rows = sel.reference, sig.flow_lpm, folds.train
+    d = build(ref, sig, {**sel.chain, word: {}})
+    theta = fit_final(d, y, rows)
+    level = _coef(word, d, theta)
+    if level is None:
+        return None
+    fitted = d.predict(theta)
+    if VOCABULARY[word].pinned(sig, fitted - level * d.X[:, d.names.index(word)], fitted):
+        return None
+    s = build(ref, sig, sel.chain, static=True)
+    ok = rows & s.fit_ok
+    misfit = float(np.sqrt(np.mean((y - s.predict(fit_final(s, y, rows)))[ok] ** 2)))
+    if misfit <= EXPLAINED * noise:
+        return None
+    unit = next(iter(VOCABULARY[word].units.values()))
+    return (f"not identifiable against this model file: no rows read its level by themselves (a shut valve's zero), "
+            f"and with {', '.join(sel.chain) or 'no word'} in place the model misses the recording by {misfit:.3g} "
+            f"{unit} RMS beside a free static curve of the duty and a constant, beyond the noise ({noise:.3g} {unit}): "
+            f"a misfit no level explains, which a constant trades against (it reads {level:.3g} {unit} here)")
 
 
 def _level_within_misfit(word: str, others: dict, sel: Selection, sig: Signals, folds: Folds) -> str | None:
