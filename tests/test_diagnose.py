@@ -1101,6 +1101,32 @@ def test_an_offset_a_model_file_misses_the_valves_loop_around_is_not_identifiabl
     assert "misses the recording" in d.model["not_identifiable"]["sensor_offset"]
 
 
+def test_an_asymmetry_against_a_model_file_must_also_show_beside_a_symmetric_pi_fitted_on_the_recording():
+    # the foreign valve's loop, held against a PI fitted on its staircase, is missed by that file as a
+    # loop a little too narrow at the top, which a descending-threshold lift takes up; the paper's PI
+    # fitted on the recording is as symmetric as the file and takes that misfit up itself. A true
+    # asymmetry (x5) shows beside it as it does against the file
+    from models.diagnose import detectors as D
+    from models.diagnose import load_margins
+
+    for effects, asymmetric in (((), False), ((("asymmetric_hysteresis", 5.0),), True)):
+        sig, folds, _ = _foreign_against_the_model_file(effects, "triangles")
+        why = D._symmetric_misfit("asymmetric_hysteresis", {}, {"asymmetric_hysteresis": {}}, sig, folds,
+                                  load_margins())
+        assert (why is None) == asymmetric, why
+
+
+def test_a_foreign_valves_loop_misfit_beside_an_offset_is_not_named_an_asymmetry():
+    """A foreign valve with a 35 ms lag and an offset of -1.7 L/min on triangles, against its model file:
+    an asymmetry (lift 1.3 % duty) was named on the file's misfit of the loop, and the offset beside it
+    sized -2.8. Refused beside a symmetric PI fitted on the recording, the offset is named at its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("sensor_offset", -1.69), ("valve_dynamics", 0.0351)), "triangles", 11188, 0.42)
+    d = diagnose_response(G.record(probe), F.model_file())
+    assert "asymmetric_hysteresis" not in {f.effect for f in d.findings}
+    assert G.judge(probe, d) == []
+
+
 def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
     # plant_sim's valve against its own model file on random holds above its seat: no row reads the
     # sensor's zero, but the model explains the recording to the noise, so a constant would show: the
