@@ -1127,6 +1127,18 @@ def test_a_foreign_valves_loop_misfit_beside_an_offset_is_not_named_an_asymmetry
     assert G.judge(probe, d) == []
 
 
+def test_a_model_file_that_does_not_record_its_supply_is_held_at_the_reference_hardwares():
+    """A foreign valve identified at 3.0 bar without a supply column, held against a recording whose supply
+    wanders and droops with the flow to a mean of 2.97 bar, with an offset of 1.8 L/min: the model's flow
+    scaled to the recording's mean supply read the droop's share of the flow as a constant (1.12 L/min);
+    scaled to DESIGN.md's 3 bar, the offset is named at its size beside the supply's law."""
+    G = pytest.importorskip("diagnose_gross")
+    assert "supply_bar" not in F.model_file().meta
+    probe = G.Probe("foreign", (("sensor_offset", 1.8), ("supply_pressure", 0.1732)), "chirp", 11268, 0.65)
+    d = diagnose_response(G.record(probe), F.model_file())
+    assert G.judge(probe, d) == []
+
+
 def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
     # plant_sim's valve against its own model file on random holds above its seat: no row reads the
     # sensor's zero, but the model explains the recording to the noise, so a constant would show: the

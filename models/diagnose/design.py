@@ -137,12 +137,17 @@ class Base:
 
     @property
     def supply_ref_bar(self) -> float | None:
-        """The supply (bar gauge) a model file was identified at, if it records it
-        (:func:`models.fitting.fit_recording`); ``None`` for a refitted PI, whose gain is refitted."""
+        """The supply (bar gauge) a model file was identified at: as it records it
+        (:func:`models.fitting.fit_recording`), else the reference hardware's
+        (:data:`.effects.REFERENCE_SUPPLY_BAR`); ``None`` for a refitted PI, whose gain is refitted.
+
+        Not the recording's mean supply: a supply that droops with the flow averages below the
+        regulator's setting, and the model file's flow scaled to that mean reads the droop's share of
+        the flow as a constant (a foreign valve identified at 3.0 bar, held against a recording
+        drooping to a mean of 2.97: a 1.8 L/min offset read 1.12)."""
         if self.refit:
             return None
-        value = self.root.model.meta.get("supply_bar")
-        return None if value is None else float(value)
+        return float(self.root.model.meta.get("supply_bar", fx.REFERENCE_SUPPLY_BAR))
 
     def _cached(self, key, make, keep: int = 4):
         """``make()`` cached under ``key``; at most ``keep`` entries of its kind (``key[0]``) besides

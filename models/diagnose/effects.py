@@ -22,6 +22,9 @@ from .. import play
 ALPHA_CU_PER_K = 0.00393
 #: Standard atmosphere (bar), to turn gauge into absolute pressure.
 P_ATM_BAR = 1.01325
+#: Supply (bar gauge) of DESIGN.md's reference hardware: what a model file that does not record the
+#: supply of its identification recording was identified at.
+REFERENCE_SUPPLY_BAR = 3.0
 #: Duty at which DESIGN.md states the steady coil temperature rise (%).
 HEATING_REF_DUTY_PCT = 55.0
 
