@@ -1139,6 +1139,24 @@ def test_a_model_file_that_does_not_record_its_supply_is_held_at_the_reference_h
     assert G.judge(probe, d) == []
 
 
+def test_an_asymmetry_starts_where_a_warm_coils_valve_opens_on_the_duty_its_magnetics_see():
+    # plant_sim's valve (seated at 38 %) 44 K warm on the paper sweep: it opens at a commanded duty that
+    # rises as the coil warms, while its core's input opens at the seat; the asymmetry's widening is
+    # sought from there, not from the commanded duty that splits the shut rows best (41 %)
+    G = pytest.importorskip("diagnose_gross")
+    from models.diagnose import make_folds, memory_start_s, running_rows, work_signals
+    from models.diagnose.design import fit_baseline
+
+    rec, rest = running_rows(G.record(G.Probe("plant", (("coil_heating", 44.35),), "paper", 11361, 0.47)))
+    sig = work_signals(rec, rest)
+    base = fit_baseline(sig, make_folds(sig.t_s, start_s=memory_start_s(sig)))
+    asym = VOCABULARY["asymmetric_hysteresis"]
+    heat = {"rise55_k": 44.35, "tau_s": 180.0, "start": 0.0}
+    at = {name: base.shape_scale.from_unit(2.0 * asym._opening(sig, base, chain)["start"] - 1.0)
+          for name, chain in (("warm", {"coil_heating": heat}), ("cold", {}))}
+    assert abs(at["warm"] - 38.0) < 1.0 < at["cold"] - 38.0
+
+
 def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
     # plant_sim's valve against its own model file on random holds above its seat: no row reads the
     # sensor's zero, but the model explains the recording to the noise, so a constant would show: the

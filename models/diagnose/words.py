@@ -558,7 +558,7 @@ class AsymmetricHysteresis(Word):
         # zero-threshold operator too): the exact law has both, started on a coarse grid
         h = major_loop_half_width(base.shape.r, base.lift_w)
         first = float(np.clip(coef / h if h > 1e-3 else 0.1, 0.01, 20.0))
-        at = {} if "dead_zone" in chain else self._opening(sig, base)
+        at = {} if "dead_zone" in chain else self._opening(sig, base, chain)
         lifts = (1e-3, 0.3, 1.0, 3.0, 10.0)
         # and the lift alone (the widening at the lower bound of its box), a valley of its own
         # (:meth:`basin`): ranked among the widenings in proportion, whose unrefined starts fit
@@ -588,28 +588,34 @@ class AsymmetricHysteresis(Word):
         if h <= 1e-3 or not base.refit:
             return []
         box = self.bounds(sig, base)
-        at = {} if "dead_zone" in chain else self._opening(sig, base)
+        at = {} if "dead_zone" in chain else self._opening(sig, base, chain)
         return [{"widen": box["widen"][0], "lift": float(np.clip(c * h, box["lift"][0], box["lift"][1])), **at}
                 for c in GROSS_LIFTS]
 
     @staticmethod
-    def _opening(sig: Signals, base) -> dict:
+    def _opening(sig: Signals, base, chain: dict) -> dict:
         """``{"start": position}`` where the valve opens in the input range of a PI fitted on a
-        recording that rests below the opening (the duty that best splits its rows into shut below
-        and open above), refined from there; empty when no row is shut: the widening starts at the
-        bottom of the range.
+        recording that rests below the opening (the duty the magnetics see under ``chain`` that best
+        splits its rows into shut below and open above), refined from there; empty when no row is
+        shut: the widening starts at the bottom of the range.
 
         A widening counted from a rest below the opening lifts every descending threshold by a
         constant where the valve opens, which the PI refitted with it takes out of its own loop: the
         loop's half-width shrinks and the extra width relative to it doubles (x9.7 named 20.6 on a
         mixed recording resting at 34 %, the simulated valve's loop starting at 38 %). Not beside a
         named dead zone: it shuts the valve after the hysteresis core, whose own opening it hides
-        (a start placed at a 44 % cracking duty named x8 as 3.6)."""
+        (a start placed at a 44 % cracking duty named x8 as 3.6). On the duty the magnetics see: a warm
+        coil's valve opens at a higher commanded duty, not a higher input of its core (a coil 44 K warm
+        on the paper sweep: a start at 43.2 % commanded, where the core's input opens at 38 %, doubled the
+        refitted PI's own loop and named x5.6 as 2.1)."""
+        from .design import seated_input
+
         shut = base.shut(sig)
         if not shut.any() or shut.all():
             return {}
-        order = np.argsort(sig.duty_pct, kind="stable")
-        x, opened = sig.duty_pct[order], ~shut[order]
+        duty = seated_input(sig, chain)
+        order = np.argsort(duty, kind="stable")
+        x, opened = duty[order], ~shut[order]
         # misplaced rows with the split after row i: open rows at or below it, shut rows above it
         wrong = np.cumsum(opened) + (np.sum(~opened) - np.cumsum(~opened))
         pos = (float(base.unit_input(x[int(np.argmin(wrong))])) + 1.0) / 2.0
