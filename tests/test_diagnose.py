@@ -1157,6 +1157,34 @@ def test_an_asymmetry_starts_where_a_warm_coils_valve_opens_on_the_duty_its_magn
     assert abs(at["warm"] - 38.0) < 1.0 < at["cold"] - 38.0
 
 
+def test_a_heating_beside_an_asymmetry_is_read_again_with_the_widening_started_at_the_opening():
+    """The same coil 44 K warm on the paper sweep with x5.6: named first, the heating took up part of the
+    widening (54 K, 263 s), and the widening then started at 43 %, above the valve's opening at 38 %,
+    which holds the heating there. The asymmetry's other reading starts at the opening on the duty the
+    magnetics see; refined jointly from it, the heating is read at its size with less training error."""
+    G = pytest.importorskip("diagnose_gross")
+    from models.diagnose import detectors as D
+    from models.diagnose import make_folds, memory_start_s, running_rows, work_signals
+    from models.diagnose.design import fit_baseline
+
+    rec, rest = running_rows(G.record(G.Probe("plant", (("asymmetric_hysteresis", 5.61), ("coil_heating", 44.35)),
+                                              "paper", 11361, 0.47)))
+    sig = work_signals(rec, rest)
+    folds = make_folds(sig.t_s, start_s=memory_start_s(sig))
+    ref = D.reference(fit_baseline(sig, folds), sig, folds)[0]
+    found = {"coil_heating": {"rise55_k": 54.1, "tau_s": 263.0, "start": 0.0},
+             "asymmetric_hysteresis": {"widen": 0.001, "lift": 0.3035, "start": 0.153}}
+    pair = ["coil_heating", "asymmetric_hysteresis"]
+    readings = VOCABULARY["asymmetric_hysteresis"].readings(found["asymmetric_hysteresis"], sig, ref, found)
+    at_opening = [(p, held) for p, held in readings if held == ("start",)]
+    assert len(at_opening) == 1 and at_opening[0][0]["start"] < 0.02
+    stay = D.refine_jointly(pair, found, ref, sig, folds)
+    moved = D.refine_jointly(pair, {**found, "asymmetric_hysteresis": at_opening[0][0]}, ref, sig, folds,
+                             held=(("asymmetric_hysteresis", "start"),))
+    assert D._chain_sse(pair[0], moved, ref, sig, folds) < D._chain_sse(pair[0], stay, ref, sig, folds)
+    assert abs(moved["coil_heating"]["rise55_k"] - 44.35) < 0.1 * 44.35 < abs(stay["coil_heating"]["rise55_k"] - 44.35)
+
+
 def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
     # plant_sim's valve against its own model file on random holds above its seat: no row reads the
     # sensor's zero, but the model explains the recording to the noise, so a constant would show: the

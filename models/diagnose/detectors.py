@@ -1183,7 +1183,7 @@ def _joint_restart(sel: Selection, sig: Signals, folds: Folds) -> bool:
     starts = [(dict(sel.chain), ())]
     for w in pair:
         starts += [({**sel.chain, w: p}, tuple((w, k) for k in held))
-                   for p, held in VOCABULARY[w].readings(sel.chain[w], sig, root)]
+                   for p, held in VOCABULARY[w].readings(sel.chain[w], sig, root, sel.chain)]
     if len(starts) == 1:
         return False
     coarse = _subsample(folds.train, START_ROWS)
