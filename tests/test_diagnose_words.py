@@ -439,11 +439,12 @@ def test_an_asymmetrys_other_reading_is_every_threshold_lifted_by_its_size():
     r = np.linspace(0.0, 0.6, 12)
     w = np.exp(-r / 0.2)
     w /= w.sum()
-    base = SimpleNamespace(shape=SimpleNamespace(r=r), lift_w=w)
+    # (a valve never seen shut: no reading from its opening)
+    base = SimpleNamespace(shape=SimpleNamespace(r=r), lift_w=w, shut=lambda sig: np.zeros(len(sig.duty_pct), bool))
     h = major_loop_half_width(r, w)
     sig = _sig(np.full(100, 50.0), np.zeros(100))
     params = {"widen": 1.5, "lift": 0.2 * h, "start": 0.1}
-    ((other, held),) = asym.readings(params, sig, base)
+    ((other, held),) = asym.readings(params, sig, base, {})
     assert held == ("widen",)
     assert other["widen"] == asym.bounds(sig, base)["widen"][0]
     assert other["start"] == params["start"]
