@@ -450,6 +450,6 @@ def test_an_asymmetrys_other_reading_is_every_threshold_lifted_by_its_size():
     assert other["start"] == params["start"]
     assert other["widen"] + other["lift"] / h == pytest.approx(1.7, rel=0.01)
     # the linearized law has no other reading; nor has a word with one law on the input
-    assert asym.readings({}, sig, base) == []
-    assert VOCABULARY["coil_heating"].readings({"rise55_k": 30.0, "tau_s": 180.0}, sig, base) == []
+    assert asym.readings({}, sig, base, {}) == []
+    assert VOCABULARY["coil_heating"].readings({"rise55_k": 30.0, "tau_s": 180.0}, sig, base, {}) == []
 
