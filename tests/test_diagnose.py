@@ -1185,6 +1185,14 @@ def test_a_heating_beside_an_asymmetry_is_read_again_with_the_widening_started_a
     assert abs(moved["coil_heating"]["rise55_k"] - 44.35) < 0.1 * 44.35 < abs(stay["coil_heating"]["rise55_k"] - 44.35)
 
 
+def test_a_coil_so_warm_its_valve_stays_shut_between_breaths_is_named():
+    # the matrix's coil 160 K warm on breaths resting at 40 %: after the first minutes the valve opens
+    # only near each breath's top, and a floor fitted a little above its seat has its line pass flow on
+    # 13 % of rows measured shut (a dead zone's jump read as a heating's floor: a third)
+    d = diagnose_response(S.record(S.Case((("coil_heating", 160.0),), "breaths", 1, 0.5)))
+    assert {f.effect for f in d.findings} >= {"coil_heating"}
+
+
 def test_a_model_file_that_explains_a_valve_never_shut_says_it_has_no_offset():
     # plant_sim's valve against its own model file on random holds above its seat: no row reads the
     # sensor's zero, but the model explains the recording to the noise, so a constant would show: the
