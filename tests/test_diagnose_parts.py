@@ -701,6 +701,40 @@ def test_a_dead_zone_named_beside_a_word_since_dropped_is_read_again_on_the_fina
             assert d.outcome == DROPPED and "coil_heating" in d.why and "rest" in d.why
 
 
+def test_a_word_whose_parameters_read_on_the_final_chain_are_not_physical_is_dropped():
+    # a word's reported parameters are read from the whole chain's fit (a creep's amplitude is its
+    # column's coefficient there), which can leave the range it was named in: the backward check drops
+    # it with the reason, and keeps a word beside it whose parameters stay physical
+    from models.diagnose.calibrate import calibrate
+    from models.diagnose.design import fit_baseline
+    from models.diagnose.detectors import Candidate, Selection, _backward, reference
+    from models.diagnose.signals import Signals
+    from models.diagnose.trace import DROPPED
+    from models.diagnose.words import WORDS
+
+    rate, noise = 50.0, 0.3
+    t = np.arange(0.0, 120.0, 1.0 / rate)
+    duty = 55.0 + 15.0 * np.sin(2 * np.pi * 0.2 * t)
+    q = 3.0 * (duty - 38.0)
+    flow = fx.first_order_lag(q + 0.1 * fx.creep(q, branch(duty), rate, 5.0), rate, 0.05)
+    sig = Signals(t, duty, flow + np.random.default_rng(5).normal(0.0, noise, t.size), None, None, rate)
+    folds = make_folds(sig.t_s)
+    cur, before = reference(fit_baseline(sig, folds), sig, folds)
+    lag, creep = {"tau_s": 0.05, "phase": 1.0}, {"tau_s": 5.0}
+    for amplitude, dropped in ((-0.01, True), (0.01, False)):
+        sel = Selection(chain={"valve_dynamics": lag, "creep": creep}, reference=cur,
+                        params={"valve_dynamics": dict(lag), "creep": {**creep, "amplitude": amplitude}},
+                        steps=[Candidate(w, 0.1, 6, p, before.test, before.test, cur)
+                               for w, p in (("valve_dynamics", lag), ("creep", creep))])
+        gone = _backward(sel, sig, folds, calibrate({w: [] for w in WORDS}), 3)
+        if dropped:
+            assert gone == "creep" and set(sel.chain) == {"valve_dynamics"}
+            (d,) = sel.trace
+            assert d.outcome == DROPPED and "amplitude" in d.why
+        else:
+            assert gone is None and set(sel.chain) == {"valve_dynamics", "creep"}
+
+
 @pytest.mark.slow  # ~6 s
 def test_a_cracking_duty_is_placed_again_beside_the_lag_refined_with_it():
     # a cracking duty chosen beside a lag sized before it was known is a held level off; refined once

@@ -1046,6 +1046,10 @@ def _backward(sel: Selection, sig: Signals, folds: Folds, margins: Margins, rnd:
     failing = []
     for step in sel.steps:
         c, why = earns(step.word, sel.chain, sel.reference, sig, folds, margins)
+        # its reported parameters are read from the whole chain's fit: a linear column's coefficient
+        # can leave the physical range the word was named in (a creep named beside a heating and a
+        # supply wander on the paper sweep, read as -0.012 once the three were refined together)
+        why = why or VOCABULARY[step.word].implausible(sel.params[step.word])
         if why:
             failing.append((c, why))
     if not failing:
