@@ -1127,6 +1127,17 @@ def test_a_foreign_valves_loop_misfit_beside_an_offset_is_not_named_an_asymmetry
     assert G.judge(probe, d) == []
 
 
+@pytest.mark.slow  # ~30 s
+def test_a_warm_coil_on_breaths_resting_below_a_cracking_duty_is_named_with_the_dead_zone():
+    """A foreign valve 33 K warm on breaths resting just below its cracking duty (43.7 %): alone, the
+    heating's seat line passed flow where the valve measured shut (refused), and the dead zone alone,
+    at a rest the warming coil moves, gained 0.2 %. Named together, each at its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("coil_heating", 32.65), ("dead_zone", 43.69)), "breaths", 11590, 0.36)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+
+
 def test_a_model_file_that_does_not_record_its_supply_is_held_at_the_reference_hardwares():
     """A foreign valve identified at 3.0 bar without a supply column, held against a recording whose supply
     wanders and droops with the flow to a mean of 2.97 bar, with an offset of 1.8 L/min: the model's flow

@@ -959,6 +959,20 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
                                        f"{100 * c.gain:.1f} % against {100 * a.gain:.1f} %) and this recording "
                                        f"cannot show {c.word}'s law"))
             return rnd + 1
+        pair = _with_companion(refused, accepted, words, sel, cur, sig, folds, noise, margins)
+        if pair is not None:
+            accepted, companion = pair
+            c, sel.chain, phys = accepted
+            sel.params.update(phys)
+            cur = c.base = unbend(c.base or cur, sig, sel.chain, folds.train)
+            sel.steps += [c, companion]
+            sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, NAMED))
+            sel.trace.append(_decision(companion, rnd, margins.gain[companion.word], margins, NAMED,
+                                       f"named with {c.word}, whose law the recording shows only beside it"))
+            words = [w for w in words if w not in (c.word, companion.word)]
+            before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
+            rnd += 1
+            continue
         if accepted is None:
             return rnd + 1
         accepted, alt = _lag_or_delay(accepted, cands, passing, sel.chain, cur, sig, folds, noise, margins)
@@ -1345,6 +1359,56 @@ def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds
             continue
         return found, refused
     return None, refused
+
+
+def _with_companion(refused: list, accepted, words: list, sel: Selection, cur: Base, sig: Signals, folds: Folds,
+                    noise: float, margins: Margins) -> tuple | None:
+    """A law stronger than the one ``accepted`` (or than none), refused because the recording does not
+    show it (:data:`UNSUPPORTED`), named together with a range-end law placed where the recording shows
+    it beside that law (:meth:`Word.placed`: a cracking duty where the flow at the valve leaves zero on
+    the duty the magnetics see under a warm coil): ``((candidate, chain, physical params by word),
+    companion candidate)``, or ``None``.
+
+    Each law alone can be the other's misfit: a coil 33 K warm on breaths resting just below a
+    cracking duty was refused, its floor's seat line passing flow where the valve measured shut,
+    and the dead zone alone gained 0.2 % (its jump, at a rest a warming coil moves, explains little
+    without the warming). The two are named only where the stronger law is accepted beside the
+    placed one (physical, resolved, supported), and each earns its place beside the other
+    (:func:`earns`), the range-end law supported by the rows that show it (:func:`_unsupported`).
+    """
+    if len(sel.chain) + 2 > MAX_EFFECTS:
+        return None
+    y = sig.flow_lpm
+    for c, outcome, _ in refused:
+        if outcome != UNSUPPORTED or VOCABULARY[c.word].static or (accepted and c.gain <= accepted[0].gain):
+            continue
+        for s in (w for w in words if VOCABULARY[w].static and w not in sel.chain):
+            for p in VOCABULARY[s].placed(sig, {**sel.chain, c.word: c.params}):
+                beside = {**sel.chain, s: p}
+                b = unbend(cur, sig, beside, folds.train)
+                before = cross_validate(build(b, sig, beside), y, folds)
+                found = _accept(test_effect(c.word, beside, before, b, sig, folds, margins.gain[c.word], gross=True),
+                                beside, b, sig, folds, noise, margins)
+                if isinstance(found[0], str):
+                    continue
+                full = found[1]
+                earned = [earns(w, full, sel.reference, sig, folds, margins) for w in (c.word, s)]
+                if any(why for _, why in earned):
+                    continue
+                others = {k: v for k, v in full.items() if k != s}
+                b1 = unbend(sel.reference, sig, full, folds.train)
+                d = build(b1, sig, full)
+                theta = fit_final(d, y, folds.train)
+                if _unsupported(VOCABULARY[s], full[s], others, unbend(sel.reference, sig, others, folds.train),
+                                b1, d, theta, sig, folds, noise):
+                    continue
+                phys = chain_params(full, d, theta, sig, b1)
+                if any(VOCABULARY[w].implausible(phys[w]) for w in full):
+                    continue
+                named, companion = found[0], earned[1][0]
+                companion.params = full[s]
+                return (named, full, phys), companion
+    return None
 
 
 def _masking(refused: list, accepted) -> tuple | None:
