@@ -941,7 +941,8 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
             sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, outcome, why))
             if outcome == MASKED and c.word in DYNAMIC:
                 sel.loop_misfit[c.word] = why
-        masking = _masking(refused, accepted)
+        pair = _with_companion(refused, accepted, passing, words, sel, cur, sig, folds, noise, margins)
+        masking = None if pair is not None else _masking(refused, accepted)
         if masking is not None and _independent(accepted, masking[0], sel.reference, sig, folds, margins):
             # the rival explains the same residual only if the one found loses its place beside it: a
             # clip measured at its plateau still earns its place beside a dead zone whose gain came
@@ -959,8 +960,8 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
                                        f"{100 * c.gain:.1f} % against {100 * a.gain:.1f} %) and this recording "
                                        f"cannot show {c.word}'s law"))
             return rnd + 1
-        pair = _with_companion(refused, accepted, words, sel, cur, sig, folds, noise, margins)
         if pair is not None:
+            pair_over = accepted[0] if accepted is not None else None
             accepted, companion = pair
             c, sel.chain, phys = accepted
             sel.params.update(phys)
@@ -968,7 +969,12 @@ def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Sign
             sel.steps += [c, companion]
             sel.trace.append(_decision(c, rnd, _need(c, sel, margins), margins, NAMED))
             sel.trace.append(_decision(companion, rnd, margins.gain[companion.word], margins, NAMED,
-                                       f"named with {c.word}, whose law the recording shows only beside it"))
+                                       f"named together with {c.word}: the recording shows each law only "
+                                       f"beside the other"))
+            if pair_over is not None and pair_over.word not in sel.chain:
+                sel.trace.append(_decision(pair_over, rnd, _need(pair_over, sel, margins), margins, MASKED,
+                                           f"{c.word} and {companion.word} together explain more of the same "
+                                           f"residual (held-out)"))
             words = [w for w in words if w not in (c.word, companion.word)]
             before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
             rnd += 1
@@ -1361,54 +1367,88 @@ def _first_acceptable(passing: list, chain: dict, cur: Base, sig: Signals, folds
     return None, refused
 
 
-def _with_companion(refused: list, accepted, words: list, sel: Selection, cur: Base, sig: Signals, folds: Folds,
-                    noise: float, margins: Margins) -> tuple | None:
-    """A law stronger than the one ``accepted`` (or than none), refused because the recording does not
-    show it (:data:`UNSUPPORTED`), named together with a range-end law placed where the recording shows
-    it beside that law (:meth:`Word.placed`: a cracking duty where the flow at the valve leaves zero on
-    the duty the magnetics see under a warm coil): ``((candidate, chain, physical params by word),
-    companion candidate)``, or ``None``.
+def _with_companion(refused: list, accepted, passing: list, words: list, sel: Selection, cur: Base, sig: Signals,
+                    folds: Folds, noise: float, margins: Margins) -> tuple | None:
+    """A law named together with a range-end law placed where the recording shows it beside that law
+    (:meth:`Word.placed`: a cracking duty where the flow at the valve leaves zero on the duty the
+    magnetics see under a warm coil), when one of the two was refused because the recording does not
+    show it (:data:`UNSUPPORTED`) and gained more than the law ``accepted`` (or than none):
+    ``((candidate, chain, physical params by word), companion candidate)``, or ``None``.
 
-    Each law alone can be the other's misfit: a coil 33 K warm on breaths resting just below a
-    cracking duty was refused, its floor's seat line passing flow where the valve measured shut,
-    and the dead zone alone gained 0.2 % (its jump, at a rest a warming coil moves, explains little
-    without the warming). The two are named only where the stronger law is accepted beside the
-    placed one (physical, resolved, supported), and each earns its place beside the other
-    (:func:`earns`), the range-end law supported by the rows that show it (:func:`_unsupported`).
+    Each law alone can be the other's misfit. A coil 33 K warm on breaths resting just below a cracking
+    duty was refused, its floor's seat line passing flow where the valve measured shut, and the dead
+    zone alone gained 0.2 %: its jump, at a rest the warming coil moves, explains little without the
+    warming. A coil 35 K warm with a dead zone at 46 % on a mixed excitation: the dead zone, refused as
+    a misfit at the valve's rest, gained most, and an asymmetry was named on the loop the warming
+    smeared. The pair is named where the law is accepted beside the placed range-end law (physical,
+    resolved, supported), each earns its place beside the other (:func:`earns`), the range-end law is
+    supported by the rows that show it (:func:`_unsupported`), and the two explain the recording better
+    (held-out) than the law accepted alone.
     """
     if len(sel.chain) + 2 > MAX_EFFECTS:
         return None
     y = sig.flow_lpm
-    for c, outcome, _ in refused:
-        if outcome != UNSUPPORTED or VOCABULARY[c.word].static or (accepted and c.gain <= accepted[0].gain):
-            continue
-        for s in (w for w in words if VOCABULARY[w].static and w not in sel.chain):
+    beats = [(c, VOCABULARY[c.word].static) for c, outcome, _ in refused
+             if outcome == UNSUPPORTED and (accepted is None or c.gain > accepted[0].gain)]
+    tries = [c for c, static in beats if not static]
+    if any(static for _, static in beats):
+        # a range-end law refused: tried beside each law that moves the duty the magnetics see, where it acts
+        tries += [c for c in passing if VOCABULARY[c.word].input_side == "duty" and c not in tries]
+    if not tries:
+        return None
+
+    def held_out_sse(chain: dict) -> float:
+        return float(cross_validate(build(unbend(sel.reference, sig, chain, folds.train), sig, chain), y,
+                                    folds).test.sum())
+
+    bar = held_out_sse(accepted[1]) if accepted is not None else np.inf
+    for c in tries:
+        for s in (w for w in words if VOCABULARY[w].static and w not in sel.chain and w != c.word):
             for p in VOCABULARY[s].placed(sig, {**sel.chain, c.word: c.params}):
-                beside = {**sel.chain, s: p}
-                b = unbend(cur, sig, beside, folds.train)
-                before = cross_validate(build(b, sig, beside), y, folds)
-                found = _accept(test_effect(c.word, beside, before, b, sig, folds, margins.gain[c.word], gross=True),
-                                beside, b, sig, folds, noise, margins)
-                if isinstance(found[0], str):
+                found = _beside_placed(c, s, p, sel, cur, sig, folds, noise, margins)
+                if found is None:
                     continue
-                full = found[1]
-                earned = [earns(w, full, sel.reference, sig, folds, margins) for w in (c.word, s)]
-                if any(why for _, why in earned):
-                    continue
-                others = {k: v for k, v in full.items() if k != s}
-                b1 = unbend(sel.reference, sig, full, folds.train)
-                d = build(b1, sig, full)
-                theta = fit_final(d, y, folds.train)
-                if _unsupported(VOCABULARY[s], full[s], others, unbend(sel.reference, sig, others, folds.train),
-                                b1, d, theta, sig, folds, noise):
-                    continue
-                phys = chain_params(full, d, theta, sig, b1)
-                if any(VOCABULARY[w].implausible(phys[w]) for w in full):
-                    continue
-                named, companion = found[0], earned[1][0]
-                companion.params = full[s]
-                return (named, full, phys), companion
+                (named, full, phys), companion = found
+                if held_out_sse(full) < bar:
+                    return found
     return None
+
+
+def _beside_placed(c: Candidate, s: str, params: dict, sel: Selection, cur: Base, sig: Signals, folds: Folds,
+                   noise: float, margins: Margins) -> tuple | None:
+    """The law of ``c`` accepted (:func:`_accept`) beside the range-end law ``s`` at ``params``, ``s`` then
+    placed again beside it (:func:`_placed_beside`: it was placed on the law's screened setting) and the law
+    accepted once more there: as :func:`_with_companion` returns, or ``None`` where either is refused."""
+    y = sig.flow_lpm
+    for _ in range(2):
+        beside = {**sel.chain, s: params}
+        b = unbend(cur, sig, beside, folds.train)
+        before = cross_validate(build(b, sig, beside), y, folds)
+        found = _accept(test_effect(c.word, beside, before, b, sig, folds, margins.gain[c.word], gross=True),
+                        beside, b, sig, folds, noise, margins)
+        if isinstance(found[0], str):
+            return None
+        placed = _placed_beside(s, found[1], sel.reference, sig, folds)
+        if placed is None:
+            break
+        params = placed[0]
+    full = found[1]
+    earned = [earns(w, full, sel.reference, sig, folds, margins) for w in (c.word, s)]
+    if any(why for _, why in earned):
+        return None
+    others = {k: v for k, v in full.items() if k != s}
+    b1 = unbend(sel.reference, sig, full, folds.train)
+    d = build(b1, sig, full)
+    theta = fit_final(d, y, folds.train)
+    if _unsupported(VOCABULARY[s], full[s], others, unbend(sel.reference, sig, others, folds.train),
+                    b1, d, theta, sig, folds, noise):
+        return None
+    phys = chain_params(full, d, theta, sig, b1)
+    if any(VOCABULARY[w].implausible(phys[w]) for w in full):
+        return None
+    companion = earned[1][0]
+    companion.params = full[s]
+    return (found[0], full, phys), companion
 
 
 def _masking(refused: list, accepted) -> tuple | None:
