@@ -1157,6 +1157,16 @@ def test_a_word_earns_its_place_against_the_others_refined_without_it():
     assert G.judge(probe, d) == []
 
 
+def test_a_warm_coil_and_an_offset_each_refused_alone_are_named_together():
+    """plant_sim's valve 29 K warm with a sensor offset of 2.3 L/min, held against its model file on a mixed
+    excitation: alone, the heating's time constant ran to its bound (the offset unexplained) and the offset's
+    constant took up the warming (refused by the shut rows' reading). Named together, each at its size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("coil_heating", 28.51), ("sensor_offset", 2.29)), "mixed", 11651, 1.0)
+    d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
+    assert G.judge(probe, d) == []
+
+
 def test_a_model_file_that_does_not_record_its_supply_is_held_at_the_reference_hardwares():
     """A foreign valve identified at 3.0 bar without a supply column, held against a recording whose supply
     wanders and droops with the flow to a mean of 2.97 bar, with an offset of 1.8 L/min: the model's flow
