@@ -73,4 +73,4 @@ def explain(d: Decision) -> str:
         return f"named, then dropped by the backward check on the final chain: {d.why}; not asserted"
     if d.outcome == UNCONFIRMED:
         return f"passed the cross-validation but not the holdout: {d.why}; not asserted"
-    return test
+    return f"{test}: {d.why}" if d.why else test
