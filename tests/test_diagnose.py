@@ -1167,7 +1167,7 @@ def test_a_warm_coil_and_an_offset_each_refused_alone_are_named_together():
     assert G.judge(probe, d) == []
 
 
-@pytest.mark.slow  # ~90 s
+@pytest.mark.slow  # ~2 min
 def test_a_gross_misfit_left_by_the_greedy_search_is_searched_again_from_another_first_word():
     """A foreign valve with a dead zone at 46.8 % behind a 56 ms lag and a 47 ms delay, on a chirp: each law
     alone explains 20-40 % of the misfit and the three together 99.6 %. Greedy, the search named a coil
