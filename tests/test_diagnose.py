@@ -1167,6 +1167,21 @@ def test_a_warm_coil_and_an_offset_each_refused_alone_are_named_together():
     assert G.judge(probe, d) == []
 
 
+def test_a_clip_few_breaths_reach_is_named_and_a_loop_on_breaths_is_not_named_a_creep():
+    """A foreign valve 30 K warm, clipped at 147 L/min and x3.4 asymmetric, on breaths: the clip holds only
+    the highest breaths' tops (0.6 % of the rows, above every level of the clip's old grid, which read it
+    at 144 L/min and refused it as exceeded there), and the asymmetric loop, which breaths cannot show,
+    leaves a rest flow that follows the breath before: a creep of 0.0044 over 0.5 s fitted it, and the
+    same law settled within a sample fitted it better. The heating and the clip are named at their sizes,
+    and no creep."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("asymmetric_hysteresis", 3.37), ("coil_heating", 29.96), ("saturation", 147.25)),
+                    "breaths", 11817, 0.62)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+    assert {f.effect for f in d.findings} == {"coil_heating", "saturation"}
+
+
 @pytest.mark.slow  # ~2 min
 def test_a_gross_misfit_left_by_the_greedy_search_is_searched_again_from_another_first_word():
     """A foreign valve with a dead zone at 46.8 % behind a 56 ms lag and a 47 ms delay, on a chirp: each law

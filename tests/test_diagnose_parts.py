@@ -894,3 +894,28 @@ def test_a_creep_held_against_a_model_file_explains_more_than_a_misfit_of_the_va
     for true_tau in (5.0, 12.0):
         sig, base = _chirp_against_the_model_file(lambda duty, q, b, s: 0.1 * fx.creep(q, branch(duty), s.rate_hz, true_tau))
         assert misfit(true_tau, sig, base) is None
+
+
+@pytest.mark.parametrize("tau_s, seen", [(6.0, True), (0.02, False)])
+def test_a_creep_is_named_only_where_its_drift_beats_the_same_law_settled_within_a_sample(tau_s, seen):
+    # a creep settled at once is a level set by each reversal step, rate-independent as a loop's shape
+    # is: a flow that steps so after each reversal shows no drift in time, one that relaxes over
+    # seconds does
+    from models.diagnose.design import build, fit_baseline, unbend
+    from models.diagnose.detectors import _drift_unseen, reference
+    from models.diagnose.signals import Signals
+    from models.diagnose.words import WORDS
+
+    rate, noise = 50.0, 0.3
+    t = np.arange(0.0, 180.0, 1.0 / rate)
+    duty = 55.0 + 15.0 * np.sin(2 * np.pi * np.cumsum(0.02 + 0.2 * t / t[-1]) / rate)
+    q = 3.0 * (duty - 38.0)
+    flow = q + 0.1 * fx.creep(q, branch(duty), rate, tau_s)
+    sig = Signals(t, duty, flow + np.random.default_rng(7).normal(0.0, noise, t.size), None, None, rate)
+    folds = make_folds(sig.t_s)
+    cur, _ = reference(fit_baseline(sig, folds), sig, folds)
+    full = {"creep": {"tau_s": 6.0}}
+    why = _drift_unseen("creep", full, unbend(cur, sig, full, folds.train), sig, folds, calibrate({w: [] for w in WORDS}))
+    assert (why is None) == seen
+    if not seen:
+        assert "drift in time is not seen" in why

@@ -377,6 +377,12 @@ class Word:
         wrong by a different amount in each epoch, are a staircase in time, not the word's physics."""
         return False
 
+    def instant(self, params: dict, sig: Signals) -> dict | None:
+        """The law's setting with its drift in time made instantaneous (a time constant of one sample),
+        which a drift must explain beyond (:func:`models.diagnose.detectors._drift_unseen`), or
+        ``None``: the law does not drift."""
+        return None
+
     def absorbed(self, sig: Signals, chain: dict) -> str | None:
         """Why the word, not named, cannot be told apart from a baseline fitted on the recording
         although the recording shows its law's signature (asked only when ``chain``, the named
@@ -1373,7 +1379,7 @@ class Saturation(Word):
     """Flow clipped at the full-open flow."""
 
     def grid(self, sig, base):
-        q = np.percentile(sig.flow_lpm, [75, 82, 88, 92, 95, 97, 98.5, 99.3])
+        q = np.percentile(sig.flow_lpm, [75, 82, 88, 92, 95, 97, 98.5, 99.3, 99.7, 99.9])
         return {"full_open_lpm": np.unique(np.round(q, 2))}
 
     def clip_lpm(self, params):
@@ -1481,6 +1487,12 @@ class Creep(Word):
         on = ctx.core_input if params.get("magnetic") and ctx.core_input is not None else ctx.sig.duty_pct
         q = np.clip(ctx.flow_lpm, 0.0, None)
         return [fx.creep(q, branch(on), ctx.sig.rate_hz, params["tau_s"])]
+
+    def instant(self, params, sig):
+        # settled within the sample after each reversal: a level that depends on the last reversal
+        # step, which a loop's own shape makes too (an asymmetric loop on breaths, whose rest flow
+        # follows the peak of the breath before)
+        return {**params, "tau_s": 1.0 / sig.rate_hz}
 
     def physical(self, params, coef, sig, base, fitted_lpm=None):
         return {"tau_s": float(params["tau_s"]), "amplitude": float(coef)}
