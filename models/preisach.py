@@ -76,14 +76,16 @@ def switch(alpha, beta, g, xk):
 
 
 @njit(cache=True)
-def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, hi_end):
+def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, hi_end, base_at_end):
     """Input where the increasing staircase ``base + sum_{keys_i <= x} weights_i`` over
     ``keys[start:stop]`` (within ``[kmin, kmax]``; ``weights >= 0``; ``x`` in ``[lo_end, hi_end]``)
     is at its level nearest ``target``. A level's own value maps to the middle of its interval
     (``hi_end`` for the top level: nothing more to give), and targets between two levels
     linearly from there to the step between them, which the midpoint of the two levels
     reaches: the input is continuous and non-decreasing in ``target``, and always on the
-    nearest level. The entries are reordered in place.
+    nearest level. With ``base_at_end`` the level ``base`` is the range's last the other way
+    (nothing moves the sum that way) and maps to ``lo_end``, where the other way's call puts it.
+    The entries are reordered in place.
 
     The level crossing ``target`` is found by splitting the candidate keys at the middle of
     their range and keeping the side it lies in: one pass over the survivors per split, O(n)
@@ -103,7 +105,7 @@ def _nearest_step(keys, weights, start, stop, kmin, kmax, base, target, lo_end, 
             else:
                 right_min = min(right_min, k)
         if kmax == kmin:  # the step: level base on [prev, kmin), base + left on [kmin, nxt)
-            low = 0.5 * (prev + kmin)
+            low = lo_end if base_at_end and prev == lo_end else 0.5 * (prev + kmin)
             high = hi_end if nxt >= hi_end else 0.5 * (kmin + nxt)
             half = base + 0.5 * left
             if target <= base or left <= 0.0:
@@ -157,9 +159,11 @@ def solve_input(alpha, beta, mu, g, target, lo, hi):
                 rise_min = min(rise_min, alpha[i])
                 rise_max = max(rise_max, alpha[i])
                 up += 1
+    # at the top level (nothing rises) a target at it gives hi, and one just below it starts there;
+    # at the bottom level alike with lo
     if target >= now:
-        return _nearest_step(keys, weights, 0, up, rise_min, rise_max, now, target, flat_lo, hi)
-    return -_nearest_step(keys, weights, down, m, fall_min, fall_max, -now, -target, -flat_hi, -lo)
+        return _nearest_step(keys, weights, 0, up, rise_min, rise_max, now, target, flat_lo, hi, down == m)
+    return -_nearest_step(keys, weights, down, m, fall_min, fall_max, -now, -target, -flat_hi, -lo, up == 0)
 
 
 @njit(cache=True)
