@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -153,6 +153,8 @@ def test_inverse_gives_the_reachable_level_nearest_the_target(history, target):
 
 @settings(max_examples=30, deadline=None)
 @given(st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=8), st.integers(0, 2**31))
+@example([1.0], 100000000)  # every relay up, those above 0.9 of no weight: the top level's interval is wide
+@example([-1.0], 100000000)  # and every relay down: the bottom level's
 def test_inverse_is_continuous_and_non_decreasing_in_the_target(history, seed):
     """Also across each level's value (where it maps to the middle of the level's interval) and
     halfway between two (where it crosses the step), with relays of no weight among them (they
