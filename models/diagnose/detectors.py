@@ -73,8 +73,15 @@ RESTARTS = 2
 #: A time constant at the unresolved end of its grid gives way to a resolved one whose training error
 #: is within this fraction of the reference's (:func:`_resolved_best`).
 TIE = 0.005
+#: A word refused below its margin by its screen's held-out gain within this fraction of the margin is
+#: screened again once the chain is refined (:func:`_forward_again`).
+NEAR_MISS = 0.5
 #: Time parameter of each word of :data:`DYNAMIC`.
 TIME_PARAM = {"valve_dynamics": "tau_s", "transport_delay": "delay_s"}
+#: A lag whose time constant is under this many sample periods has settled to 2 % by the next sample
+#: (``exp(-4)``): a recording shows no smoothing of it, only how late the flow is, which a delay states
+#: with one parameter (:func:`_named_before`).
+SETTLED_SAMPLES = 0.25
 #: Function evaluations of one exact-law refinement (besides those of its Jacobians).
 REFINE_EVALS = 16
 #: Relative step (of the log-scale parameters) of the refinement's finite-difference Jacobian: a
@@ -937,6 +944,7 @@ def _search(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=N
     while True:
         rnd = _forward(sel, words, cur, before, sig, folds, margins, noise, rnd, progress, first)
         _backfit(sel, sig, folds)
+        rnd = _forward_again(sel, words, sig, folds, margins, noise, rnd, progress)
         gone = _backward(sel, sig, folds, margins, rnd)
         if gone is None and dropped:
             # the final chain, after the backward check dropped a word: the static laws' support read on it
@@ -958,6 +966,30 @@ def _search(base: Base, sig: Signals, folds: Folds, margins: Margins, progress=N
         words = [w for w in WORDS if w not in sel.not_identifiable and w not in sel.chain and w not in dropped]
         cur = unbend(sel.reference, sig, sel.chain, folds.train)
         before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
+
+
+def _forward_again(sel: Selection, words: list, sig: Signals, folds: Folds, margins: Margins,
+                   noise: float, rnd: int, progress=None) -> int:
+    """The forward search once more, for the words its last round refused below their margin by less
+    than :data:`NEAR_MISS`, on the chain as :func:`_backfit` refined it, with the PI refitted from the
+    reference under it (then refined again with whatever it adds); returns the next round's number.
+
+    The words were screened beside the PI each word named refitted in turn, whose shape took up what
+    it could of the residual, and beside laws sized one after the other: a heating named beside a
+    delay on breaths, the creep explained 5.7 % of the held-out error for 9.7 % needed, and 17.6 %
+    beside the chain refined with the reference's PI refitted under it."""
+    last = {d.word: d for d in sel.trace}
+    left = [w for w in words if w not in sel.chain and w in last and last[w].outcome == BELOW_MARGIN
+            and last[w].gain >= NEAR_MISS * last[w].need]
+    if not left:
+        return rnd
+    n = len(sel.chain)
+    cur = unbend(sel.reference, sig, sel.chain, folds.train)
+    before = cross_validate(build(cur, sig, sel.chain), sig.flow_lpm, folds)
+    rnd = _forward(sel, left, cur, before, sig, folds, margins, noise, rnd, progress)
+    if len(sel.chain) > n:
+        _backfit(sel, sig, folds)
+    return rnd
 
 
 def _forward(sel: Selection, words: list, cur: Base, before: CVResult, sig: Signals, folds: Folds,
@@ -1234,7 +1266,8 @@ def _lag_or_delay_again(sel: Selection, sig: Signals, folds: Folds, noise: float
             sel.chain = {k: kept[1][k] for k in sel.chain}
             sel.params[w], step.params = kept[2], sel.chain[w]
             _steps_refitted(sel, sig, folds)
-        if held_out_sse(alt_chain) >= held_out_sse(sel.chain):
+        if _named_before((step, sel.chain, sel.params[w]), held_out_sse(sel.chain), again, held_out_sse(alt_chain),
+                         sig.rate_hz):
             sel.alternatives[w] = again
             continue
         named = (step, dict(sel.chain), sel.params.pop(w))
@@ -1592,8 +1625,10 @@ def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur:
     def held_out_sse(named: dict) -> float:
         return float(cross_validate(build(unbend(cur, sig, named, folds.train), sig, named), y, folds).test.sum())
 
-    ranked = sorted(((held_out_sse(f[1]), i, f) for i, f in enumerate((accepted, alt))), key=lambda r: r[:2])
-    (best, _, first), (worse, _, second) = ranked
+    (sse_a, sse_b) = (held_out_sse(f[1]) for f in (accepted, alt))
+    (best, first), (worse, second) = (((sse_a, accepted), (sse_b, alt))
+                                      if _named_before(accepted, sse_a, alt, sse_b, sig.rate_hz)
+                                      else ((sse_b, alt), (sse_a, accepted)))
     # screens apart by more than AMBIGUOUS (one screened at a grid setting, the other refined) are
     # both refined: the alternative is reported when their exact laws' held-out errors are as close
     # (a 27 ms delay at 50 Hz screened at 18 ms, 2.9 % behind a lag with the command held two thirds
@@ -1601,6 +1636,22 @@ def _lag_or_delay(accepted: tuple, cands: dict, passing: list, chain: dict, cur:
     if tied or worse - best < AMBIGUOUS * float(np.sum(c.test_before)):
         return first, second
     return first, None
+
+
+def _named_before(a: tuple, sse_a: float, b: tuple, sse_b: float, rate_hz: float) -> bool:
+    """Whether of a lag and a delay ``a`` and ``b`` (each ``(candidate, chain, physical params)``, with its
+    chain's held-out error), ``a`` is the one named: the lower held-out error, but a lag settled within a
+    sample (:data:`SETTLED_SAMPLES`) gives way to a delay within :data:`AMBIGUOUS` of it.
+
+    A 21 ms delay at 50 Hz was named as a lag of 4 ms with its command 95 % a sample late, its held-out
+    error 1e-5 below the delay's: the lag's smoothing is gone by the next sample, all it carries is
+    the lateness."""
+    def settled(f: tuple) -> bool:
+        return f[0].word == "valve_dynamics" and f[2]["tau_s"] * rate_hz < SETTLED_SAMPLES
+
+    if settled(a) != settled(b) and max(sse_a, sse_b) <= (1.0 + AMBIGUOUS) * min(sse_a, sse_b):
+        return settled(b)
+    return sse_a <= sse_b
 
 
 def _beside(found: tuple, cur: Base, sig: Signals, folds: Folds, noise: float, margins: Margins) -> tuple:
