@@ -1209,6 +1209,22 @@ def test_a_word_refused_just_below_its_margin_is_screened_again_beside_the_refin
     assert G.judge(probe, d) == []
 
 
+@pytest.mark.slow  # ~1 min
+def test_an_asymmetry_a_symmetric_pi_fitted_on_the_recording_takes_up_is_not_identifiable_against_the_model_file():
+    """plant_sim x7.6 asymmetric, clipped at 140 L/min, its sensor 2.3 L/min high, held against its model
+    file on a mixed excitation. The asymmetry explains 95 % of the held-out error against the file, but
+    beside the paper's symmetric PI fitted on the recording only 0.75 %: the recording shows a loop the
+    file misses, not that the valve's own loop is asymmetric. It is dropped and said to be not
+    identifiable against the model file; the clip and the offset are named at their sizes."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("asymmetric_hysteresis", 7.64), ("saturation", 139.86), ("sensor_offset", 2.32)),
+                    "mixed", 12383, 0.93)
+    d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
+    assert "asymmetric_hysteresis" not in {f.effect for f in d.findings}
+    assert "symmetric PI" in d.model["not_identifiable"]["asymmetric_hysteresis"]
+    assert G.judge(probe, d) == []
+
+
 def test_a_lag_settled_within_a_sample_gives_way_to_the_delay_it_ties_with():
     """A foreign valve with a 21 ms delay (one sample at 50 Hz) beside an asymmetry, on triangles. A lag of
     4 ms with its command 95 % of a sample late fits the recording as well (held-out error 1e-5 lower):
