@@ -153,9 +153,11 @@ def test_a_heating_is_placed_beside_the_recorded_supply():
     d = diagnose_response(G.record(probe), load_model(S.MODEL_JSON))
     assert G.judge(probe, d) == []
 
+
 @pytest.mark.parametrize("effects,seed,noise", [
     ((("supply_pressure", 0.22), ("dead_zone", 46.5), ("coil_heating", 26.0)), 9622, 1.0),
-    ((("dead_zone", 46.2), ("coil_heating", 24.0)), 9628, 0.3),
+    # (~40 s: the fast suite keeps the three-word case)
+    pytest.param((("dead_zone", 46.2), ("coil_heating", 24.0)), 9628, 0.3, marks=pytest.mark.slow),
 ])
 def test_a_warm_coil_beside_a_dead_zone_is_named_at_its_size(effects, seed, noise):
     """A coil warming beside a dead zone on a mixed excitation: the cracking duty, placed on the duty the
