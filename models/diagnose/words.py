@@ -1037,7 +1037,7 @@ class TransportDelay(Word):
 MAX_SHUT_ON_SEAT_LINE = 0.2
 #: Input floors a heating's refinement starts from, from the lowest commanded duty up to a seat above
 #: it (:meth:`CoilHeating.restarts`).
-FLOOR_STARTS = 4
+FLOOR_STARTS = 6
 
 
 #: A dead zone's edge is smoothed, for the search of a heating beside it, over the duty a coil this
