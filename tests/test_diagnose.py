@@ -1241,6 +1241,30 @@ def test_a_lag_settled_within_a_sample_gives_way_to_the_delay_it_ties_with():
     assert lag.alternative_to == "transport_delay"
 
 
+def test_a_warm_coils_input_floor_the_recording_refutes_gives_way_to_another_floor():
+    """A coil 36 K warm on plant_sim's valve, seated at its lowest duty, on a mixed excitation. Its law
+    refined best with the valve's input held at 37.8 %, where the seat's line below passes flow on rows a
+    fifth of which measure the valve shut: that floor is refuted, and the law is named on the floor the
+    recording bears out, at its size (it was refused, and nothing named)."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("plant", (("coil_heating", 36.03),), "mixed", 12553, 0.69)
+    d = diagnose_response(G.record(probe))
+    assert G.judge(probe, d) == []
+    assert not any(t["outcome"] == "unsupported" for t in d.model["trace"] if t["word"] == "coil_heating")
+
+
+def test_a_law_short_of_a_fold_majority_is_named_beside_the_companion_it_needs():
+    """A foreign valve on triangles with its supply wandering 0.14 bar and a sensor offset of 2.3 L/min,
+    held against its model file. The supply's law lowers the held-out error by 18 % but in only half
+    the folds (the offset biases its coefficient on the rows the model file misfits), the offset alone
+    not at all; each beside the other earns its place in every fold, and both are named at their size."""
+    G = pytest.importorskip("diagnose_gross")
+    probe = G.Probe("foreign", (("sensor_offset", 2.27), ("supply_pressure", 0.1376)), "triangles", 12503, 0.75)
+    d = diagnose_response(G.record(probe), F.model_file())
+    assert G.judge(probe, d) == []
+    assert {f.effect for f in d.findings} == {"sensor_offset", "supply_pressure"}
+
+
 @pytest.mark.slow  # ~2 min
 def test_a_gross_misfit_left_by_the_greedy_search_is_searched_again_from_another_first_word():
     """A foreign valve with a dead zone at 46.8 % behind a 56 ms lag and a 47 ms delay, on a chirp: each law

@@ -209,6 +209,11 @@ class Word:
         parameters the refinement keeps fixed; ``None`` by default: one valley."""
         return None
 
+    def between(self, params: dict, starts: list) -> list:
+        """Starts of valleys (:meth:`basin`) halfway between the one ``params`` was refined in and its
+        neighbours among ``starts``, to refine when the recording refutes it; empty by default."""
+        return []
+
     def restarts(self, sig: Signals, base) -> list:
         """Starts of the exact law's refinement over its whole range, independent of a screen, from
         which it is refined again once the other words are named (:func:`models.diagnose.detectors._backfit`);
@@ -750,6 +755,14 @@ class CoilHeating(Word):
         # training error is a staircase in the floor, on which a refinement stays where it starts
         return params.get("floor_pct")
 
+    def between(self, params, starts):
+        floors = sorted({p["floor_pct"] for p in starts if "floor_pct" in p})
+        if "floor_pct" not in params or len(floors) < 2:
+            return []
+        i = int(np.argmin(np.abs(np.subtract(floors, params["floor_pct"]))))
+        mids = [0.5 * (floors[i] + floors[j]) for j in (i - 1, i + 1) if 0 <= j < len(floors)]
+        return [{**p, "floor_pct": m} for p in starts if p.get("floor_pct") == floors[i] for m in mids]
+
     @staticmethod
     def _seated(sig: Signals, base) -> bool:
         """Whether a PI fitted on the recording has its valve shut at the lowest commanded duty: its
@@ -1037,7 +1050,7 @@ class TransportDelay(Word):
 MAX_SHUT_ON_SEAT_LINE = 0.2
 #: Input floors a heating's refinement starts from, from the lowest commanded duty up to a seat above
 #: it (:meth:`CoilHeating.restarts`).
-FLOOR_STARTS = 6
+FLOOR_STARTS = 4
 
 
 #: A dead zone's edge is smoothed, for the search of a heating beside it, over the duty a coil this
