@@ -150,6 +150,10 @@ class Word:
         against a PI fitted on its staircase was named an asymmetry (lift 0.4-1.3 % duty) on triangles
         and chirps with no asymmetry in it, each gaining at most 0.1 % beside the PI fitted on the
         recording, where a true one (x3-9) gains 27-91 %.
+    residual_support : bool
+        Its support reads the residual where its correction is largest (:func:`explained_where_largest`):
+        a named law mis-sized beside it leaves its own misfit there and refutes it, so a refusal is
+        read again with the named laws refined beside it (:func:`models.diagnose.detectors._beside_resized`).
     """
 
     word: str
@@ -171,6 +175,7 @@ class Word:
     beyond_loop: bool = False
     beyond_curve: bool = False
     beyond_symmetric: bool = False
+    residual_support: bool = False
 
     # -- search --
     def grid(self, sig: Signals, base) -> dict:
@@ -1584,7 +1589,8 @@ VOCABULARY: dict[str, Word] = {w.word: w for w in (
          "lift_pct": "% duty (lift of every descending threshold at the top, c)",
          "start_pct": "% duty (where the widening starts, on a recording resting below the opening)"},
         {"extra_width": (0.003, 30.0)}, joint_with_pi=True, whole_plot=True, input_side="thresholds",
-        probe={"widen": 1.0}, settled_ends=(("widen", "low"),), beyond_symmetric=True),
+        probe={"widen": 1.0}, settled_ends=(("widen", "low"),), beyond_symmetric=True,
+        residual_support=True),
     CoilHeating(
         "coil_heating", "tau dT/dt = rise55 (duty/55 %)^2 - T, or the measured coil_temp_c; effective duty = "
         "duty / (1 + 0.00393 T), the PI refitted on it",
