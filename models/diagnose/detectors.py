@@ -1572,8 +1572,8 @@ def _with_companion(refused: list, accepted, passing: list, cands: dict, words: 
         # supply wandering 0.14 bar, held against its model file on triangles beside a sensor offset of
         # 2.3 L/min, gained 18 % held-out in 3/6 folds, the offset alone none; together 53 and 63 % each
         # beside the other, in every fold (offset 2.19 L/min)
-        short = sorted((c for c in cands.values() if c not in passing and c.gain > _need(c, sel, margins)),
-                       key=lambda c: -c.gain)
+        short = sorted((c for c in cands.values()
+                        if c.gain > _need(c, sel, margins) and not c.majority(margins.min_wins)), key=lambda c: -c.gain)
         tries += [(c, s, p) for c in short for s in words if s != c.word and s not in sel.chain
                   for p in (VOCABULARY[s].placed(sig, {**sel.chain, c.word: c.params}) if VOCABULARY[s].static
                             else [cands[s].params])]
