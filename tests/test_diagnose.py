@@ -1265,7 +1265,7 @@ def test_a_law_short_of_a_fold_majority_is_named_beside_the_companion_it_needs()
     assert {f.effect for f in d.findings} == {"sensor_offset", "supply_pressure"}
 
 
-@pytest.mark.slow  # ~1 min
+@pytest.mark.slow  # ~1-2 min
 def test_an_asymmetry_refuted_by_a_law_named_before_it_is_read_again_beside_that_law_resized():
     """A foreign valve on triangles with an asymmetry x4.7 under a coil 42 K warm and a dead zone at
     44.6 %. The heating, named first, took up part of the loop's widening (10 K on 40 s), and its misfit
